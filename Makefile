@@ -1,0 +1,41 @@
+# Two commands do everything on a fresh Debian machine: `make run` and `make test`.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+PYTEST_ARGS ?=
+
+.PHONY: run test lint format bench clean system-deps
+
+## Start crowdteleop (for now: a scripted operator runs a task headless and writes an MP4).
+run: $(STAMP)
+	$(PY) -m crowdteleop demo --task lift --output out/demo-lift.mp4
+
+## Install what the tests need and run the whole suite (slow tests included).
+test: $(STAMP)
+	$(VENV)/bin/ruff check src tests benchmarks
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/ruff format --check src tests benchmarks
+
+format: $(STAMP)
+	$(VENV)/bin/ruff format src tests benchmarks
+	$(VENV)/bin/ruff check --fix src tests benchmarks
+
+bench: $(STAMP)
+	$(PY) benchmarks/sim.py
+
+system-deps:
+	bash scripts/system-deps.sh test
+
+# The venv is (re)built when pyproject.toml changes; otherwise this is a no-op.
+$(STAMP): pyproject.toml scripts/system-deps.sh scripts/setup-venv.sh
+	bash scripts/system-deps.sh test
+	bash scripts/setup-venv.sh "$(PYTHON)" "$(VENV)"
+	touch $(STAMP)
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .ruff_cache

@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Installs the Debian packages crowdteleop needs, and only those that are missing, so a second
+# run costs a few dpkg queries. Usage: scripts/system-deps.sh [run|test]
+set -euo pipefail
+
+profile="${1:-run}"
+packages=(
+  python3-venv   # the venv module on a stock Debian python3
+  libosmesa6     # MuJoCo offscreen rendering without a GPU (MUJOCO_GL=osmesa)
+  libegl1        # MuJoCo offscreen rendering through EGL (GPU or Mesa llvmpipe)
+  libgl1
+  libglib2.0-0
+)
+if [ "$profile" = "test" ]; then
+  packages+=()
+fi
+
+missing=()
+for pkg in "${packages[@]}"; do
+  # python3-venv only matters for the Debian python3; a pyenv/conda python brings its own venv.
+  if [ "$pkg" = "python3-venv" ] && python3 -c "import ensurepip, venv" 2>/dev/null; then
+    continue
+  fi
+  dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  exit 0
+fi
+
+echo "Installing Debian packages: ${missing[*]}"
+sudo=""
+if [ "$(id -u)" -ne 0 ]; then
+  command -v sudo >/dev/null || { echo "error: need root (or sudo) to install: ${missing[*]}" >&2; exit 1; }
+  sudo="sudo"
+fi
+export DEBIAN_FRONTEND=noninteractive
+$sudo apt-get update -qq
+$sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"

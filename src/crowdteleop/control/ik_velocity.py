@@ -1,0 +1,79 @@
+"""The paper's controller: desired end-effector pose -> IK set point q* -> qdot = -kv (q - q*).
+
+Inverse kinematics is mink's differential IK (a QP with joint limits) on a private copy of the
+robot's MJCF model, iterated a few times from the current configuration each control step.
+"""
+
+from __future__ import annotations
+
+import mink
+import mujoco
+import numpy as np
+
+from crowdteleop.sim.types import KinematicModel, Pose, RobotState
+
+IK_ITERATIONS = 4
+IK_STEP_S = 1.0  # each iteration takes a full Gauss-Newton step toward the target
+POSITION_TOLERANCE_M = 5e-4
+
+
+class IKVelocityController:
+    action_mode = "joint-velocity"
+
+    def __init__(self, kinematics: KinematicModel, kv: float) -> None:
+        self.kv = kv
+        self._model = mujoco.MjModel.from_xml_string(kinematics.mjcf_xml)
+        joint_ids = [self._model.joint(name).id for name in kinematics.arm_joints]
+        self._arm_qpos = self._model.jnt_qposadr[joint_ids]
+        self._arm_dofs = self._model.jnt_dofadr[joint_ids]
+        self._speed_limits = np.asarray(kinematics.joint_velocity_limits, dtype=float)
+        self._configuration = mink.Configuration(self._model)
+        self._ee_task = mink.FrameTask(
+            frame_name=kinematics.end_effector_site,
+            frame_type="site",
+            position_cost=1.0,
+            orientation_cost=0.3,
+            lm_damping=1e-2,
+        )
+        # Keep the 7th joint's null space near the current posture instead of wandering.
+        self._posture_task = mink.PostureTask(self._model, cost=1e-3)
+        self._limits = [mink.ConfigurationLimit(self._model)]
+        # Only the arm may move in the IK: other joints (fingers, objects) get huge damping.
+        self._damping = np.full(self._model.nv, 1e3)
+        self._damping[self._arm_dofs] = 1e-3
+        self._site_id = self._model.site(kinematics.end_effector_site).id
+
+    def reset(self) -> None:
+        """Stateless between steps: nothing to forget."""
+
+    def joint_setpoint(self, target: Pose, robot: RobotState) -> np.ndarray:
+        """q*: arm joint positions that put the end effector at `target`."""
+        q = self._model.qpos0.copy()
+        q[self._arm_qpos] = robot.joint_positions
+        self._configuration.update(q)
+        self._posture_task.set_target(q)
+        wxyz = np.roll(target.quaternion, 1)
+        self._ee_task.set_target(
+            mink.SE3.from_rotation_and_translation(mink.SO3(wxyz), target.position)
+        )
+        for _ in range(IK_ITERATIONS):
+            velocity = mink.solve_ik(
+                self._configuration,
+                [self._ee_task, self._posture_task],
+                IK_STEP_S,
+                solver="quadprog",
+                damping=1e-3,
+                limits=self._limits,
+            )
+            velocity[np.setdiff1d(np.arange(self._model.nv), self._arm_dofs)] = 0.0
+            self._configuration.integrate_inplace(velocity, IK_STEP_S)
+            error = self._configuration.data.site_xpos[self._site_id] - target.position
+            if np.linalg.norm(error) < POSITION_TOLERANCE_M:
+                break
+        return self._configuration.q[self._arm_qpos].copy()
+
+    def action(self, target: Pose, gripper_closed: bool, robot: RobotState) -> np.ndarray:
+        q_star = self.joint_setpoint(target, robot)
+        qdot = -self.kv * (robot.joint_positions - q_star)
+        qdot = np.clip(qdot, -self._speed_limits, self._speed_limits)
+        return np.append(qdot, 1.0 if gripper_closed else -1.0)

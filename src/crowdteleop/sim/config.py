@@ -1,0 +1,29 @@
+"""Typed configuration of one simulation, validated on construction."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from crowdteleop.sim.registry import get_task
+
+ActionMode = Literal["joint-velocity", "osc-pose"]
+
+
+class SimConfig(BaseModel):
+    """Which task, on which robot, driven how, at what control rate."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    task: str = "lift"
+    robot: str = Field("Sawyer", description="robosuite arm name: Sawyer, Panda, UR5e, IIWA, ...")
+    action_mode: ActionMode = "joint-velocity"
+    control_hz: float = Field(20.0, gt=0, le=500, description="control steps per simulated second")
+    max_joint_speed: float = Field(1.5, gt=0, le=10, description="rad/s, joint-velocity mode")
+
+    @field_validator("task")
+    @classmethod
+    def _task_exists(cls, name: str) -> str:
+        get_task(name)  # raises UnknownTaskError listing the known tasks
+        return name

@@ -1,0 +1,71 @@
+"""The one interface through which the platform drives a simulated robot.
+
+Nothing backend-specific crosses it: inputs and outputs are numpy arrays and the plain types of
+`crowdteleop.sim.types`. A backend owns its simulator, renderer and GL context; `close` frees
+them.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from crowdteleop.sim.config import SimConfig
+from crowdteleop.sim.types import (
+    ActionSpec,
+    ContactEvent,
+    KinematicModel,
+    Pose,
+    RobotState,
+    StepResult,
+    TaskProgress,
+)
+
+
+@runtime_checkable
+class Simulation(Protocol):
+    config: SimConfig
+    action_spec: ActionSpec
+    cameras: tuple[str, ...]
+
+    @property
+    def control_dt(self) -> float:
+        """Seconds of simulated time one `step` advances."""
+        ...
+
+    def reset(self, seed: int | None = None) -> None:
+        """Start a new episode; the same seed gives the same initial state."""
+
+    def step(self, action: np.ndarray) -> StepResult:
+        """Apply `action` (see `action_spec`) for one control period."""
+        ...
+
+    def render(self, camera: str, width: int, height: int) -> np.ndarray:
+        """An RGB frame, uint8 (height, width, 3), top row first."""
+        ...
+
+    def get_state(self) -> np.ndarray:
+        """Flat [time, qpos, qvel]: restoring it reproduces the next step and render exactly."""
+        ...
+
+    def set_state(self, state: np.ndarray) -> None: ...
+
+    def success(self) -> bool: ...
+
+    def contacts(self) -> list[ContactEvent]: ...
+
+    def progress(self) -> TaskProgress: ...
+
+    def robot_state(self) -> RobotState: ...
+
+    def object_poses(self) -> dict[str, Pose]:
+        """Privileged poses of task objects and their grasp frames: for scripted operators and
+        analysis only, never sent to workers."""
+        ...
+
+    def kinematics(self) -> KinematicModel: ...
+
+    def mjcf_xml(self) -> str: ...
+
+    def close(self) -> None: ...

@@ -1,0 +1,245 @@
+"""`Simulation` on the bare `mujoco` bindings: proof that the interface needs no robosuite.
+
+Mirrors `RobosuiteSimulation` (validation, cold solver start per control step, contact events)
+on the hand-written scene of `scene.py`. Only ``joint-velocity`` actions are supported: they map
+directly onto the scene's joint-velocity servos, so no controller code is needed.
+"""
+
+from __future__ import annotations
+
+from crowdteleop.sim.gl import choose_gl_backend
+
+choose_gl_backend()
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+from crowdteleop.errors import (  # noqa: E402
+    ConfigError,
+    InvalidActionError,
+    InvalidStateError,
+    UnknownRobotError,
+)
+from crowdteleop.sim.config import SimConfig  # noqa: E402
+from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms  # noqa: E402
+from crowdteleop.sim.mujoco_backend import scene  # noqa: E402
+from crowdteleop.sim.registry import TaskSpec, get_task  # noqa: E402
+from crowdteleop.sim.rendering import CameraRenderer  # noqa: E402
+from crowdteleop.sim.types import (  # noqa: E402
+    ActionSpec,
+    ContactEvent,
+    KinematicModel,
+    Pose,
+    RobotState,
+    StepResult,
+    TaskProgress,
+)
+
+# The scene has one arm of its own; "Sawyer" (SimConfig's default) is accepted so a config
+# written for the robosuite backend only needs its task changed.
+ROBOTS = ("mujoco-arm", "Sawyer")
+CUBE_XY_RANGE = 0.08  # m, uniform around the table centre
+LIFT_SUCCESS_HEIGHT = 0.04  # m above the cube's resting height
+IDENTITY_QUAT = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+class MujocoSimulation:
+    """The pure-MuJoCo lift scene behind the `Simulation` interface."""
+
+    def __init__(self, config: SimConfig) -> None:
+        if config.robot not in ROBOTS:
+            raise UnknownRobotError(
+                f"unknown robot {config.robot!r} for the mujoco backend; its scene has one arm, "
+                f"named one of: {', '.join(ROBOTS)}"
+            )
+        if config.action_mode != "joint-velocity":
+            raise ConfigError(
+                f"the mujoco backend supports action_mode 'joint-velocity' only, got "
+                f"{config.action_mode!r}; use a robosuite task (e.g. 'lift') for 'osc-pose'"
+            )
+        self.config = config
+        self.task: TaskSpec = get_task(config.task)
+        if self.task.backend != "mujoco":
+            raise ConfigError(
+                f"task {config.task!r} belongs to the {self.task.backend} backend, not mujoco"
+            )
+        self._xml = scene.scene_xml(self.task.env_name)
+        self._model = mujoco.MjModel.from_xml_string(self._xml)
+        self._data = mujoco.MjData(self._model)
+        model = self._model
+        self._substeps = max(1, round(1.0 / (config.control_hz * model.opt.timestep)))
+        self._renderer = CameraRenderer(model)
+        self.cameras = self._renderer.cameras
+        self._init_indices()
+        n = len(scene.ARM_JOINTS)
+        speed = config.max_joint_speed
+        self.action_spec = ActionSpec(
+            "joint-velocity", n + 1,
+            np.append(np.full(n, -speed), -1.0), np.append(np.full(n, speed), 1.0),
+        )
+        self._contacts = self._make_contact_reader()
+        self._closed = False
+        self.reset()
+
+    def _init_indices(self) -> None:
+        model = self._model
+        arm = [model.joint(name).id for name in scene.ARM_JOINTS]
+        self._arm_joint_ids = np.array(arm)
+        self._arm_qpos = model.jnt_qposadr[arm]
+        self._arm_dofs = model.jnt_dofadr[arm]
+        servos = [model.actuator(f"{name}_servo").id for name in scene.ARM_JOINTS]
+        self._servo_ctrl = np.array(servos)
+        self._servo_act = model.actuator_actadr[servos]
+        self._velocity_ctrl = np.array(
+            [model.actuator(f"{name}_velocity").id for name in scene.ARM_JOINTS]
+        )
+        fingers = [model.joint(name).id for name in scene.FINGER_JOINTS]
+        self._finger_qpos = model.jnt_qposadr[fingers]
+        self._finger_ctrl = np.array(
+            [model.actuator(f"{name}_position").id for name in scene.FINGER_JOINTS]
+        )
+        self._pad_geoms = tuple(model.geom(name).id for name in scene.FINGER_PADS)
+        self._cube_body = model.body("cube").id
+        self._cube_geom = model.geom("cube").id
+        self._cube_qpos = model.jnt_qposadr[model.joint("cube_joint").id]
+        self._ee_site_id = model.site("ee_site").id
+        self._base_body_id = model.body("robot_base").id
+        self._cube_rest_z = scene.TABLE_TOP_Z + scene.CUBE_HALF
+
+    # --- lifecycle -------------------------------------------------------------------------
+    @property
+    def control_dt(self) -> float:
+        return float(self._substeps * self._model.opt.timestep)
+
+    def reset(self, seed: int | None = None) -> None:
+        rng = np.random.default_rng(seed)
+        model, data = self._model, self._data
+        mujoco.mj_resetData(model, data)
+        data.qpos[self._arm_qpos] = scene.HOME_QPOS
+        data.qpos[self._finger_qpos] = 0.0
+        x, y = rng.uniform(-CUBE_XY_RANGE, CUBE_XY_RANGE, size=2)
+        yaw = rng.uniform(-np.pi, np.pi)
+        data.qpos[self._cube_qpos : self._cube_qpos + 7] = (
+            x, y, self._cube_rest_z, np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)
+        )
+        data.act[self._servo_act] = scene.HOME_QPOS
+        mujoco.mj_forward(model, data)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._renderer.close()
+            self._closed = True
+
+    # --- stepping --------------------------------------------------------------------------
+    def step(self, action: np.ndarray) -> StepResult:
+        action = np.asarray(action, dtype=float)
+        if action.shape != (self.action_spec.size,):
+            raise InvalidActionError(
+                f"action must have shape ({self.action_spec.size},) for "
+                f"{self.action_spec.mode}, got {action.shape}"
+            )
+        if not np.all(np.isfinite(action)):
+            raise InvalidActionError("action contains NaN or infinity")
+        action = np.clip(action, self.action_spec.low, self.action_spec.high)
+        qdot, gripper = action[:-1], action[-1]
+        data = self._data
+        # Cold solver start (see RobosuiteSimulation.step) and a servo set point re-anchored at
+        # the measured joints: the step depends on [time, qpos, qvel] and the action alone.
+        data.qacc_warmstart[:] = 0.0
+        data.act[self._servo_act] = data.qpos[self._arm_qpos]
+        data.ctrl[self._servo_ctrl] = qdot
+        data.ctrl[self._velocity_ctrl] = qdot
+        data.ctrl[self._finger_ctrl] = (gripper + 1.0) / 2.0 * scene.FINGER_TRAVEL
+        mujoco.mj_step(self._model, data, nstep=self._substeps)
+        # mj_step leaves kinematics and contacts one substep stale; observe the new state.
+        mujoco.mj_forward(self._model, data)
+        success = self.success()
+        return StepResult(float(success), success, self.contacts(), self._progress(success))
+
+    def success(self) -> bool:
+        cube_z = self._data.xpos[self._cube_body][2]
+        return bool(cube_z > self._cube_rest_z + LIFT_SUCCESS_HEIGHT)
+
+    # --- state -----------------------------------------------------------------------------
+    def get_state(self) -> np.ndarray:
+        data = self._data
+        return np.concatenate(([data.time], data.qpos, data.qvel))
+
+    def set_state(self, state: np.ndarray) -> None:
+        state = np.asarray(state, dtype=float)
+        nq, nv = self._model.nq, self._model.nv
+        if state.shape != (1 + nq + nv,):
+            raise InvalidStateError(f"state must have shape ({1 + nq + nv},), got {state.shape}")
+        if not np.all(np.isfinite(state)):
+            raise InvalidStateError("state contains NaN or infinity")
+        data = self._data
+        data.time = state[0]
+        data.qpos[:] = state[1 : 1 + nq]
+        data.qvel[:] = state[1 + nq :]
+        data.act[self._servo_act] = data.qpos[self._arm_qpos]
+        mujoco.mj_forward(self._model, data)
+
+    # --- observation -----------------------------------------------------------------------
+    def render(self, camera: str, width: int, height: int) -> np.ndarray:
+        return self._renderer.render(self._data, camera, width, height)
+
+    def contacts(self) -> list[ContactEvent]:
+        return self._contacts.read(self._data)
+
+    def progress(self) -> TaskProgress:
+        return self._progress(self.success())
+
+    def _progress(self, success: bool) -> TaskProgress:
+        if success:
+            return TaskProgress("done", "Cube lifted: well done!", 2, 2)
+        if self._grasped():
+            return TaskProgress("grasped", "Cube grasped: now lift it.", 1, 2)
+        return TaskProgress("reach", "Reach for the cube and grasp it.", 0, 2)
+
+    def _grasped(self) -> bool:
+        """Both finger pads touch the cube."""
+        contact = self._data.contact
+        g1, g2 = contact.geom1, contact.geom2
+        touching = np.concatenate((g2[g1 == self._cube_geom], g1[g2 == self._cube_geom]))
+        return all(pad in touching for pad in self._pad_geoms)
+
+    def robot_state(self) -> RobotState:
+        data = self._data
+        fingers = data.qpos[self._finger_qpos] / scene.FINGER_TRAVEL
+        return RobotState(
+            joint_positions=data.qpos[self._arm_qpos].copy(),
+            joint_velocities=data.qvel[self._arm_dofs].copy(),
+            end_effector=Pose.from_matrix(
+                data.site_xpos[self._ee_site_id], data.site_xmat[self._ee_site_id]
+            ),
+            base=Pose.from_matrix(data.xpos[self._base_body_id], data.xmat[self._base_body_id]),
+            gripper_closed_fraction=float(np.clip(np.mean(fingers), 0.0, 1.0)),
+        )
+
+    def object_poses(self) -> dict[str, Pose]:
+        data = self._data
+        cube = Pose.from_matrix(data.xpos[self._cube_body], data.xmat[self._cube_body])
+        table = Pose(np.array([0.0, 0.0, scene.TABLE_TOP_Z]), IDENTITY_QUAT.copy())
+        return {"cube": cube, "table": table}
+
+    def kinematics(self) -> KinematicModel:
+        return KinematicModel(
+            mjcf_xml=self.mjcf_xml(),
+            arm_joints=scene.ARM_JOINTS,
+            end_effector_site="ee_site",
+            joint_position_limits=self._model.jnt_range[self._arm_joint_ids].copy(),
+            joint_velocity_limits=np.full(len(scene.ARM_JOINTS), self.config.max_joint_speed),
+        )
+
+    def mjcf_xml(self) -> str:
+        return self._xml
+
+    # --- construction helpers --------------------------------------------------------------
+    def _make_contact_reader(self) -> ContactReader:
+        model = self._model
+        robot_geoms = {
+            geom: model.body(model.geom_bodyid[geom]).name
+            for geom in body_subtree_geoms(model, [self._base_body_id])
+        }
+        object_geoms = {geom: "cube" for geom in body_subtree_geoms(model, [self._cube_body])}
+        return ContactReader(model, robot_geoms, object_geoms)

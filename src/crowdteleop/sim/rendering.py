@@ -1,0 +1,60 @@
+"""Offscreen rendering of a MuJoCo model from its named cameras, shared by every backend."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from crowdteleop.errors import InvalidResolutionError, UnknownCameraError
+from crowdteleop.sim.gl import render_backend_error
+
+MIN_SIDE = 16
+MAX_WIDTH = 1920
+MAX_HEIGHT = 1080
+
+
+def validate_resolution(width: int, height: int) -> None:
+    """Reject sizes a video stream cannot use before any GL work happens."""
+    for name, value, limit in (("width", width, MAX_WIDTH), ("height", height, MAX_HEIGHT)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer):
+            raise InvalidResolutionError(f"{name} must be an integer, got {value!r}")
+        if not MIN_SIDE <= value <= limit:
+            raise InvalidResolutionError(
+                f"{name} must be between {MIN_SIDE} and {limit} pixels, got {value}"
+            )
+
+
+class CameraRenderer:
+    """Renders RGB frames; keeps one `mujoco.Renderer` per resolution, made on first use."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self._model = model
+        self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
+        self.cameras = tuple(model.camera(i).name for i in range(model.ncam))
+        # The offscreen buffer bounds the largest frame; size it for any resolution we accept.
+        model.vis.global_.offwidth = max(model.vis.global_.offwidth, MAX_WIDTH)
+        model.vis.global_.offheight = max(model.vis.global_.offheight, MAX_HEIGHT)
+
+    def render(self, data: mujoco.MjData, camera: str, width: int, height: int) -> np.ndarray:
+        if camera not in self.cameras:
+            raise UnknownCameraError(
+                f"unknown camera {camera!r}; this scene has: {', '.join(self.cameras)}"
+            )
+        validate_resolution(width, height)
+        renderer = self._renderer(width, height)
+        renderer.update_scene(data, camera=camera)
+        return renderer.render()
+
+    def _renderer(self, width: int, height: int) -> mujoco.Renderer:
+        key = (int(width), int(height))
+        if key not in self._renderers:
+            try:
+                self._renderers[key] = mujoco.Renderer(self._model, height=key[1], width=key[0])
+            except Exception as exc:  # GL context creation fails in many library-specific ways
+                raise render_backend_error(exc) from exc
+        return self._renderers[key]
+
+    def close(self) -> None:
+        for renderer in self._renderers.values():
+            renderer.close()
+        self._renderers.clear()

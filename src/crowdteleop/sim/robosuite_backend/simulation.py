@@ -1,0 +1,221 @@
+"""`Simulation` on robosuite: its task classes, robot models and controllers."""
+
+from __future__ import annotations
+
+import logging
+import os
+
+from crowdteleop.sim.gl import choose_gl_backend
+
+choose_gl_backend()
+os.environ.setdefault("PYNPUT_BACKEND", "dummy")  # robosuite.devices wants an X display
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+from crowdteleop.errors import InvalidActionError, InvalidStateError, UnknownRobotError  # noqa: E402
+from crowdteleop.sim.config import SimConfig  # noqa: E402
+from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms  # noqa: E402
+from crowdteleop.sim.registry import TaskSpec, get_task  # noqa: E402
+from crowdteleop.sim.rendering import CameraRenderer  # noqa: E402
+from crowdteleop.sim.robosuite_backend import model_fixes, tasks  # noqa: E402
+from crowdteleop.sim.robosuite_backend.controllers import composite_controller_config  # noqa: E402
+from crowdteleop.sim.types import (  # noqa: E402
+    ActionSpec,
+    ContactEvent,
+    KinematicModel,
+    Pose,
+    RobotState,
+    StepResult,
+    TaskProgress,
+)
+
+logging.getLogger("robosuite").setLevel(logging.ERROR)
+
+SINGLE_ARM_ROBOTS = ("Sawyer", "Panda", "UR5e", "IIWA", "Kinova3", "Jaco")
+
+
+class RobosuiteSimulation:
+    """One robosuite environment behind the `Simulation` interface."""
+
+    def __init__(self, config: SimConfig) -> None:
+        import robosuite
+
+        if config.robot not in SINGLE_ARM_ROBOTS:
+            raise UnknownRobotError(
+                f"unknown robot {config.robot!r}; choose one of: {', '.join(SINGLE_ARM_ROBOTS)}"
+            )
+        self.config = config
+        self.task: TaskSpec = get_task(config.task)
+        control_freq = config.control_hz
+        self._env = robosuite.make(
+            self.task.env_name,
+            robots=config.robot,
+            controller_configs=composite_controller_config(config, 1.0 / control_freq),
+            has_renderer=False,
+            has_offscreen_renderer=False,
+            use_camera_obs=False,
+            use_object_obs=False,
+            control_freq=control_freq,
+            hard_reset=False,
+            ignore_done=True,
+            horizon=10**9,
+            **self.task.env_kwargs,
+        )
+        self._xml = ""
+        self._load_fixed_model()
+        self._model: mujoco.MjModel = self._env.sim.model._model
+        self._data: mujoco.MjData = self._env.sim.data._data
+        self._robot = self._env.robots[0]
+        self._arm = self._robot.arms[0]
+        self._renderer = CameraRenderer(self._model)
+        self.cameras = self._renderer.cameras
+        self.action_spec = self._make_action_spec()
+        self._arm_qpos_index = np.array(self._robot._ref_joint_pos_indexes)
+        self._arm_qvel_index = np.array(self._robot._ref_joint_vel_indexes)
+        self._ee_site = self._robot.gripper[self._arm].important_sites["grip_site"]
+        self._ee_site_id = self._model.site(self._ee_site).id
+        self._base_body_id = self._model.body(self._robot.robot_model.root_body).id
+        self._contacts = self._make_contact_reader()
+        self._init_gripper_geometry()
+
+    # --- lifecycle -------------------------------------------------------------------------
+    @property
+    def control_dt(self) -> float:
+        return float(self._env.control_timestep)
+
+    def reset(self, seed: int | None = None) -> None:
+        if seed is not None:
+            # Reseed in place: robosuite's placement samplers hold a reference to env.rng.
+            self._env.rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
+        self._env.reset()
+
+    def close(self) -> None:
+        self._renderer.close()
+        self._env.close()
+
+    # --- stepping --------------------------------------------------------------------------
+    def step(self, action: np.ndarray) -> StepResult:
+        action = np.asarray(action, dtype=float)
+        if action.shape != (self.action_spec.size,):
+            raise InvalidActionError(
+                f"action must have shape ({self.action_spec.size},) for "
+                f"{self.action_spec.mode}, got {action.shape}"
+            )
+        if not np.all(np.isfinite(action)):
+            raise InvalidActionError("action contains NaN or infinity")
+        action = np.clip(action, self.action_spec.low, self.action_spec.high)
+        # MuJoCo warm-starts its constraint solver from the previous step's accelerations, a
+        # hidden state outside [time, qpos, qvel]. Starting each control step cold makes the
+        # step a function of the recorded state and the action alone (exact restore / replay).
+        self._data.qacc_warmstart[:] = 0.0
+        _, reward, _, _ = self._env.step(action)
+        success = self.success()
+        return StepResult(float(reward), success, self.contacts(), tasks.progress(self._env, success))
+
+    def success(self) -> bool:
+        return bool(self._env._check_success())
+
+    # --- state -----------------------------------------------------------------------------
+    def get_state(self) -> np.ndarray:
+        return np.array(self._env.sim.get_state().flatten())
+
+    def set_state(self, state: np.ndarray) -> None:
+        state = np.asarray(state, dtype=float)
+        expected = 1 + self._model.nq + self._model.nv
+        if state.shape != (expected,):
+            raise InvalidStateError(f"state must have shape ({expected},), got {state.shape}")
+        self._env.sim.set_state_from_flattened(state)
+        self._env.sim.forward()
+
+    # --- observation -----------------------------------------------------------------------
+    def render(self, camera: str, width: int, height: int) -> np.ndarray:
+        return self._renderer.render(self._data, camera, width, height)
+
+    def contacts(self) -> list[ContactEvent]:
+        return self._contacts.read(self._data)
+
+    def progress(self) -> TaskProgress:
+        return tasks.progress(self._env, self.success())
+
+    def robot_state(self) -> RobotState:
+        finger_q = self._data.qpos[self._gripper_qpos_index]
+        closed = np.abs(finger_q - self._gripper_open_q) / self._gripper_span
+        gripper_closed = float(np.clip(np.mean(closed), 0.0, 1.0))
+        return RobotState(
+            joint_positions=self._data.qpos[self._arm_qpos_index].copy(),
+            joint_velocities=self._data.qvel[self._arm_qvel_index].copy(),
+            end_effector=Pose.from_matrix(
+                self._data.site_xpos[self._ee_site_id], self._data.site_xmat[self._ee_site_id]
+            ),
+            base=Pose.from_matrix(
+                self._data.xpos[self._base_body_id], self._data.xmat[self._base_body_id]
+            ),
+            gripper_closed_fraction=gripper_closed,
+            end_effector_velocity=self._site_velocity(),
+        )
+
+    def _site_velocity(self) -> np.ndarray:
+        rotational_linear = np.zeros(6)
+        mujoco.mj_objectVelocity(
+            self._model, self._data, mujoco.mjtObj.mjOBJ_SITE, self._ee_site_id, rotational_linear, 0
+        )
+        return np.concatenate([rotational_linear[3:], rotational_linear[:3]])
+
+    def object_poses(self) -> dict[str, Pose]:
+        return tasks.object_poses(self._env)
+
+    def kinematics(self) -> KinematicModel:
+        joint_ids = [self._model.joint(name).id for name in self._robot.robot_joints]
+        return KinematicModel(
+            mjcf_xml=self.mjcf_xml(),
+            arm_joints=tuple(self._robot.robot_joints),
+            end_effector_site=self._ee_site,
+            joint_position_limits=self._model.jnt_range[joint_ids].copy(),
+            joint_velocity_limits=np.full(len(joint_ids), self.config.max_joint_speed),
+        )
+
+    def mjcf_xml(self) -> str:
+        return self._xml
+
+    def _load_fixed_model(self) -> None:
+        """Recompile robosuite's model with `model_fixes` applied, keeping the XML we compiled."""
+        pairs = model_fixes.static_parent_pairs(self._env.sim.model._model)
+
+        def fix(xml: str) -> str:
+            self._xml = model_fixes.add_contact_excludes(xml, pairs)
+            return self._xml
+
+        self._env.set_xml_processor(fix)
+        self._env.reset_from_xml_string(self._env.model.get_xml())
+
+    # --- construction helpers --------------------------------------------------------------
+    def _make_action_spec(self) -> ActionSpec:
+        low, high = self._env.action_spec
+        mode = self.config.action_mode
+        return ActionSpec(mode, int(low.shape[0]), np.array(low), np.array(high))
+
+    def _init_gripper_geometry(self) -> None:
+        """Finger joint ranges; the open end is the one farther from the other finger."""
+        joint_ids = [self._model.joint(j).id for j in self._robot.gripper[self._arm].joints]
+        self._gripper_qpos_index = self._model.jnt_qposadr[joint_ids]
+        low, high = self._model.jnt_range[joint_ids].T
+        # robosuite's grippers open toward the outer limit: positive joint for the left finger.
+        self._gripper_open_q = np.where(np.abs(high) >= np.abs(low), high, low)
+        self._gripper_span = np.maximum(high - low, 1e-9)
+
+    def _make_contact_reader(self) -> ContactReader:
+        model = self._model
+        robot_root = model.body(self._robot.robot_model.root_body).id
+        prefixes = (self._robot.robot_model.naming_prefix, "gripper0_", "mount0_")
+        robot_geoms = {}
+        for geom in body_subtree_geoms(model, [robot_root]):
+            name = model.body(model.geom_bodyid[geom]).name
+            for prefix in prefixes:
+                name = name.removeprefix(prefix)
+            robot_geoms[geom] = name
+        object_geoms = {}
+        for obj in tasks.active_objects(self._env):
+            for geom in body_subtree_geoms(model, [model.body(obj.root_body).id]):
+                object_geoms[geom] = obj.name
+        return ContactReader(model, robot_geoms, object_geoms)

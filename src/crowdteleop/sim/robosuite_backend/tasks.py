@@ -1,0 +1,94 @@
+"""What each robosuite task means for the UI and for scripted operators.
+
+robosuite keeps task knowledge in private attributes of each environment class; this module is
+the one place that reads them, so the rest of the platform never does.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from crowdteleop.sim.types import Pose, TaskProgress
+
+
+def active_objects(env: Any) -> list[Any]:
+    """The robosuite objects the episode is about (single-object variants hide the rest)."""
+    if hasattr(env, "cube"):
+        return [env.cube]
+    objects = list(getattr(env, "nuts", None) or getattr(env, "objects", []))
+    if getattr(env, "single_object_mode", 0) in (1, 2):
+        objects = [obj for obj in objects if obj.name == env.obj_to_use]
+    return objects
+
+
+def _body_pose(env: Any, body_name: str) -> Pose:
+    body_id = env.sim.model.body_name2id(body_name)
+    return Pose.from_matrix(env.sim.data.body_xpos[body_id], env.sim.data.body_xmat[body_id])
+
+
+def _site_pose(env: Any, site_name: str) -> Pose:
+    site_id = env.sim.model.site_name2id(site_name)
+    return Pose.from_matrix(env.sim.data.site_xpos[site_id], env.sim.data.site_xmat[site_id])
+
+
+def object_poses(env: Any) -> dict[str, Pose]:
+    """Object poses, plus "<name>/handle" grasp frames and "<name>/target" goal positions."""
+    poses: dict[str, Pose] = {}
+    identity = np.array([0.0, 0.0, 0.0, 1.0])
+    for index, obj in enumerate(_all_objects(env)):
+        if obj not in active_objects(env):
+            continue
+        poses[obj.name] = _body_pose(env, obj.root_body)
+        if "handle" in obj.important_sites:
+            poses[f"{obj.name}/handle"] = _site_pose(env, obj.important_sites["handle"])
+        if hasattr(env, "target_bin_placements"):
+            poses[f"{obj.name}/target"] = Pose(np.array(env.target_bin_placements[index]), identity)
+        if hasattr(env, "peg1_body_id"):
+            peg = env.peg1_body_id if "square" in obj.name.lower() else env.peg2_body_id
+            poses[f"{obj.name}/target"] = Pose(np.array(env.sim.data.body_xpos[peg]), identity)
+    if hasattr(env, "table_offset"):
+        poses["table"] = Pose(np.array(env.table_offset), identity)
+    return poses
+
+
+def _all_objects(env: Any) -> list[Any]:
+    if hasattr(env, "cube"):
+        return [env.cube]
+    return list(getattr(env, "nuts", None) or getattr(env, "objects", []))
+
+
+def _grasped(env: Any, obj: Any) -> bool:
+    return bool(env._check_grasp(gripper=env.robots[0].gripper, object_geoms=obj.contact_geoms))
+
+
+def progress(env: Any, success: bool) -> TaskProgress:
+    """A stage and a sentence for the worker, e.g. "can grasped" or "1 of 2 nuts placed"."""
+    objects = active_objects(env)
+    if hasattr(env, "cube"):
+        if success:
+            return TaskProgress("done", "Cube lifted: well done!", 2, 2)
+        if _grasped(env, env.cube):
+            return TaskProgress("grasped", "Cube grasped: now lift it.", 1, 2)
+        return TaskProgress("reach", "Reach for the cube and grasp it.", 0, 2)
+
+    env._check_success()  # refreshes objects_in_bins / objects_on_pegs
+    placed_flags = getattr(env, "objects_in_bins", None)
+    if placed_flags is None:
+        placed_flags = env.objects_on_pegs
+    all_objects = _all_objects(env)
+    placed = sum(int(placed_flags[all_objects.index(obj)]) for obj in objects)
+    noun = "nuts" if hasattr(env, "nuts") else "objects"
+    where = "on their pegs" if hasattr(env, "nuts") else "in their bins"
+    if success:
+        return TaskProgress("done", f"All {noun} {where}: well done!", placed, len(objects))
+    held = [obj.name for obj in objects if _grasped(env, obj)]
+    if held:
+        return TaskProgress(
+            "grasped", f"{held[0]} grasped; {placed} of {len(objects)} {noun} {where}.",
+            placed, len(objects),
+        )
+    return TaskProgress(
+        "reach", f"{placed} of {len(objects)} {noun} {where}.", placed, len(objects)
+    )

@@ -1,0 +1,91 @@
+"""Plain data that crosses the `Simulation` boundary. Quaternions are (x, y, z, w) everywhere."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A rigid pose: position in metres and unit quaternion (x, y, z, w)."""
+
+    position: np.ndarray
+    quaternion: np.ndarray
+
+    @classmethod
+    def from_matrix(cls, position: np.ndarray, rotation_matrix: np.ndarray) -> Pose:
+        quat = Rotation.from_matrix(np.asarray(rotation_matrix).reshape(3, 3)).as_quat()
+        return cls(np.array(position, dtype=float), quat)
+
+    @property
+    def rotation(self) -> Rotation:
+        return Rotation.from_quat(self.quaternion)
+
+
+@dataclass(frozen=True)
+class ContactEvent:
+    """A robot part touching an object, for haptic feedback. Intensity is normalized to [0, 1]."""
+
+    robot_part: str
+    object: str
+    intensity: float
+
+
+@dataclass(frozen=True)
+class TaskProgress:
+    """What the UI shows the worker: a stage name, a sentence, and done / total sub-goals."""
+
+    stage: str
+    message: str
+    completed: int
+    total: int
+
+
+@dataclass(frozen=True)
+class RobotState:
+    """Proprioception the controllers need: arm joints, end-effector and base poses, gripper."""
+
+    joint_positions: np.ndarray
+    joint_velocities: np.ndarray
+    end_effector: Pose
+    base: Pose
+    gripper_closed_fraction: float
+    end_effector_velocity: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    """(vx, vy, vz, wx, wy, wz) in the world frame, m/s and rad/s."""
+
+
+@dataclass(frozen=True)
+class KinematicModel:
+    """What an IK solver needs to build its own copy of the robot's kinematics."""
+
+    mjcf_xml: str
+    arm_joints: tuple[str, ...]
+    end_effector_site: str
+    joint_position_limits: np.ndarray  # (n, 2) radians
+    joint_velocity_limits: np.ndarray  # (n,) rad/s, symmetric
+
+
+@dataclass(frozen=True)
+class ActionSpec:
+    """The action vector `Simulation.step` takes: `mode` decides its meaning.
+
+    - ``joint-velocity``: arm joint velocities in rad/s (clipped to the limits), then gripper.
+    - ``osc-pose``: robosuite OSC_POSE delta (dx, dy, dz, ax, ay, az) in [-1, 1], then gripper.
+    The last entry is always the gripper: -1 open, +1 closed.
+    """
+
+    mode: str
+    size: int
+    low: np.ndarray
+    high: np.ndarray
+
+
+@dataclass(frozen=True)
+class StepResult:
+    reward: float
+    success: bool
+    contacts: list[ContactEvent] = field(default_factory=list)
+    progress: TaskProgress | None = None
