@@ -26,7 +26,7 @@ ARM_JOINTS = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6")
 FINGER_JOINTS = ("finger_left", "finger_right")
 FINGER_PADS = ("left_pad", "right_pad")
 FINGER_TRAVEL = 0.045  # m per finger: 0 open (10 cm between pads), FINGER_TRAVEL closed
-# Grasp point 0.2 m above the table centre's near half, pointing straight down (analytic IK).
+# ee_site at (-0.1, 0, 1.0), 0.2 m above the table, pointing straight down (analytic IK).
 HOME_QPOS = (0.0, 0.2130, 2.0201, 0.0, 0.9085, 0.0)
 
 # name, axis, range (rad), servo kp, velocity kv, damping: big joints stiff, wrist light.
@@ -53,7 +53,8 @@ def _look_at(position: tuple[float, float, float], target: tuple[float, float, f
 def _camera(name: str, position: tuple[float, float, float],
             target: tuple[float, float, float], fovy: float = 45.0) -> str:
     pos = " ".join(f"{v:g}" for v in position)
-    return f'<camera name="{name}" pos="{pos}" xyaxes="{_look_at(position, target)}" fovy="{fovy:g}"/>'
+    axes = _look_at(position, target)
+    return f'<camera name="{name}" pos="{pos}" xyaxes="{axes}" fovy="{fovy:g}"/>'
 
 
 def _actuators() -> str:
@@ -100,7 +101,7 @@ def lift_scene_xml() -> str:
   <option timestep="{TIMESTEP}" integrator="implicitfast" cone="elliptic" impratio="10"/>
   <visual>
     <headlight ambient="0.3 0.3 0.3" diffuse="0.4 0.4 0.4" specular="0.1 0.1 0.1"/>
-    <quality shadowsize="2048"/>
+    <quality shadowsize="1024"/>
   </visual>
   <asset>
     <texture name="sky" type="skybox" builtin="gradient" rgb1="0.55 0.7 0.9" rgb2="0.1 0.12 0.18"
@@ -120,9 +121,18 @@ def lift_scene_xml() -> str:
     <geom friction="1 0.005 0.0001"/>
     <default class="robot">
       <geom contype="2" conaffinity="1"/>
+      <default class="link">
+        <geom type="capsule" material="link"/>
+      </default>
     </default>
     <default class="visual">
-      <geom contype="0" conaffinity="0" group="1"/>
+      <geom type="cylinder" contype="0" conaffinity="0" group="1"/>
+      <default class="joint_cap">
+        <geom material="joint"/>
+      </default>
+      <default class="leg">
+        <geom size="0.025 0.3875" material="leg"/>
+      </default>
     </default>
   </default>
   <worldbody>
@@ -134,41 +144,40 @@ def lift_scene_xml() -> str:
     <body name="table" pos="0 0 0">
       <geom name="table_top" type="box" pos="0 0 {TABLE_TOP_Z - 0.025:g}"
             size="{TABLE_HALF} {TABLE_HALF} 0.025" material="table"/>
-      <geom class="visual" type="cylinder" pos="0.35 0.35 0.3875" size="0.025 0.3875" material="leg"/>
-      <geom class="visual" type="cylinder" pos="0.35 -0.35 0.3875" size="0.025 0.3875" material="leg"/>
-      <geom class="visual" type="cylinder" pos="-0.35 0.35 0.3875" size="0.025 0.3875" material="leg"/>
-      <geom class="visual" type="cylinder" pos="-0.35 -0.35 0.3875" size="0.025 0.3875"
-            material="leg"/>
+      <geom class="leg" pos="0.35 0.35 0.3875"/>
+      <geom class="leg" pos="0.35 -0.35 0.3875"/>
+      <geom class="leg" pos="-0.35 0.35 0.3875"/>
+      <geom class="leg" pos="-0.35 -0.35 0.3875"/>
     </body>
     {cameras}
     <body name="robot_base" pos="{bx:g} {by:g} {bz:g}">
-      <geom class="robot" type="cylinder" pos="0 0 {-bz / 2:g}" size="0.09 {bz / 2:g}" material="joint"/>
+      <geom class="robot" type="cylinder" pos="0 0 {-bz / 2:g}" size="0.09 {bz / 2:g}"
+            material="joint"/>
       <geom class="robot" type="cylinder" pos="0 0 0.03" size="0.08 0.03" material="link"/>
       <body name="link1" pos="0 0 0.06" gravcomp="1">
         {_joint(0)}
-        <geom class="robot" type="capsule" fromto="0 0 0 0 0 0.14" size="0.06" material="link"/>
+        <geom class="link" fromto="0 0 0 0 0 0.14" size="0.06"/>
         <body name="link2" pos="0 0 0.16" gravcomp="1">
           {_joint(1)}
-          <geom class="visual" type="cylinder" fromto="0 -0.07 0 0 0.07 0" size="0.062" material="joint"/>
-          <geom class="robot" type="capsule" fromto="0 0 0 0 0 0.4" size="0.05" material="link"/>
+          <geom class="joint_cap" fromto="0 -0.07 0 0 0.07 0" size="0.062"/>
+          <geom class="link" fromto="0 0 0 0 0 0.4" size="0.05"/>
           <body name="link3" pos="0 0 0.4" gravcomp="1">
             {_joint(2)}
-            <geom class="visual" type="cylinder" fromto="0 -0.06 0 0 0.06 0" size="0.052" material="joint"/>
-            <geom class="robot" type="capsule" fromto="0 0 0 0 0 0.19" size="0.04" material="link"/>
+            <geom class="joint_cap" fromto="0 -0.06 0 0 0.06 0" size="0.052"/>
+            <geom class="link" fromto="0 0 0 0 0 0.19" size="0.04"/>
             <body name="link4" pos="0 0 0.2" gravcomp="1">
               {_joint(3)}
-              <geom class="robot" type="capsule" fromto="0 0 0 0 0 0.19" size="0.038" material="link"/>
+              <geom class="link" fromto="0 0 0 0 0 0.19" size="0.038"/>
               <body name="link5" pos="0 0 0.2" gravcomp="1">
                 {_joint(4)}
-                <geom class="visual" type="cylinder" fromto="0 -0.045 0 0 0.045 0" size="0.042"
-                      material="joint"/>
-                <geom class="robot" type="capsule" fromto="0 0 0 0 0 0.06" size="0.035" material="link"/>
+                <geom class="joint_cap" fromto="0 -0.045 0 0 0.045 0" size="0.042"/>
+                <geom class="link" fromto="0 0 0 0 0 0.06" size="0.035"/>
                 <body name="hand" pos="0 0 0.08" gravcomp="1">
                   {_joint(5)}
-                  <geom class="robot" type="cylinder" pos="0 0 0" size="0.04 0.01" material="joint"/>
+                  <geom class="robot" type="cylinder" size="0.04 0.01" material="joint"/>
                   <geom class="robot" type="box" pos="0 0 0.02" size="0.03 0.075 0.015"
                         material="gripper"/>
-                  <site name="ee_site" pos="0 0 0.085" size="0.006" rgba="0 1 0 0.6" group="2"/>
+                  <site name="ee_site" pos="0 0 0.085" size="0.006" rgba="0 1 0 0.6" group="3"/>
                   {_finger("left", 1)}
                   {_finger("right", -1)}
                 </body>

@@ -214,7 +214,16 @@ class MujocoSimulation:
             ),
             base=Pose.from_matrix(data.xpos[self._base_body_id], data.xmat[self._base_body_id]),
             gripper_closed_fraction=float(np.clip(np.mean(fingers), 0.0, 1.0)),
+            end_effector_velocity=self._site_velocity(),
         )
+
+    def _site_velocity(self) -> np.ndarray:
+        """(linear, angular) world-frame velocity of ``ee_site``; MuJoCo gives (angular, linear)."""
+        angular_linear = np.zeros(6)
+        mujoco.mj_objectVelocity(
+            self._model, self._data, mujoco.mjtObj.mjOBJ_SITE, self._ee_site_id, angular_linear, 0
+        )
+        return np.concatenate([angular_linear[3:], angular_linear[:3]])
 
     def object_poses(self) -> dict[str, Pose]:
         data = self._data
