@@ -49,7 +49,9 @@ class ContactReader:
             mujoco.mj_contactForce(self._model, data, index, self._force)
             intensity = min(abs(self._force[0]) / FULL_INTENSITY_NEWTONS, 1.0)
             strongest[pair] = max(strongest.get(pair, 0.0), intensity)
-        return [ContactEvent(part, obj, round(value, 4)) for (part, obj), value in strongest.items()]
+        return [
+            ContactEvent(part, obj, round(value, 4)) for (part, obj), value in strongest.items()
+        ]
 
     def _classify(self, geom1: int, geom2: int) -> tuple[str, str] | None:
         for robot_geom, other in ((geom1, geom2), (geom2, geom1)):

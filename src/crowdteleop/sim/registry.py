@@ -23,30 +23,42 @@ class TaskSpec:
 
 _TASKS: tuple[TaskSpec, ...] = (
     TaskSpec(
-        "lift", "robosuite", "Lift",
+        "lift",
+        "robosuite",
+        "Lift",
         "Pick up the red cube and lift it above the table.",
         time_limit_s=60.0,
     ),
     TaskSpec(
-        "pick-place", "robosuite", "PickPlace",
+        "pick-place",
+        "robosuite",
+        "PickPlace",
         "Put the milk, bread, cereal and can each into its own bin.",
         time_limit_s=300.0,
     ),
     TaskSpec(
-        "pick-place-can", "robosuite", "PickPlaceCan",
+        "pick-place-can",
+        "robosuite",
+        "PickPlaceCan",
         "Pick up the can and place it into its bin (bottom right).",
     ),
     TaskSpec(
-        "nut-assembly", "robosuite", "NutAssembly",
+        "nut-assembly",
+        "robosuite",
+        "NutAssembly",
         "Fit the square nut onto the square peg and the round nut onto the round peg.",
         time_limit_s=300.0,
     ),
     TaskSpec(
-        "nut-assembly-round", "robosuite", "NutAssemblyRound",
+        "nut-assembly-round",
+        "robosuite",
+        "NutAssemblyRound",
         "Fit the round nut onto the round peg.",
     ),
     TaskSpec(
-        "mujoco-lift", "mujoco", "lift",
+        "mujoco-lift",
+        "mujoco",
+        "lift",
         "Pick up the red cube and lift it above the table (pure-MuJoCo scene, no robosuite).",
         time_limit_s=60.0,
     ),

@@ -27,9 +27,13 @@ def validate_resolution(width: int, height: int) -> None:
 class CameraRenderer:
     """Renders RGB frames; keeps one `mujoco.Renderer` per resolution, made on first use."""
 
-    def __init__(self, model: mujoco.MjModel) -> None:
+    def __init__(self, model: mujoco.MjModel, hidden_geom_groups: tuple[int, ...] = ()) -> None:
+        """`hidden_geom_groups`: geom groups not drawn (robosuite keeps collision geoms in 0)."""
         self._model = model
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
+        self._option = mujoco.MjvOption()
+        for group in hidden_geom_groups:
+            self._option.geomgroup[group] = 0
         self.cameras = tuple(model.camera(i).name for i in range(model.ncam))
         # The offscreen buffer bounds the largest frame; size it for any resolution we accept.
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, MAX_WIDTH)
@@ -42,7 +46,7 @@ class CameraRenderer:
             )
         validate_resolution(width, height)
         renderer = self._renderer(width, height)
-        renderer.update_scene(data, camera=camera)
+        renderer.update_scene(data, camera=camera, scene_option=self._option)
         return renderer.render()
 
     def _renderer(self, width: int, height: int) -> mujoco.Renderer:

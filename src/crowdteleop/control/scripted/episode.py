@@ -33,7 +33,7 @@ def run_episode(
     operator.reset()
     dt = teleop.sim.control_dt
     limit = time_limit_s if time_limit_s is not None else teleop.sim_task_time_limit()
-    max_steps = int(round(limit / dt))
+    max_steps = round(limit / dt)
     held = 0
     for step_index in range(1, max_steps + 1):
         step = teleop.step(operator.command())

@@ -26,7 +26,9 @@ class OperatorStyle(BaseModel):
     speed_m_s: float = Field(0.25, gt=0, le=2.0, description="hand speed")
     turn_rad_s: float = Field(1.5, gt=0, le=10.0, description="hand turning speed")
     tremor_m: float = Field(0.0, ge=0, le=0.02, description="std of slow positional tremor")
-    hesitation_probability: float = Field(0.0, ge=0, le=1, description="chance to pause per waypoint")
+    hesitation_probability: float = Field(
+        0.0, ge=0, le=1, description="chance to pause per waypoint"
+    )
     hesitation_s: tuple[float, float] = (0.2, 1.0)
     device_origin: tuple[float, float, float] = (0.1, -0.2, 1.2)  # where the phone starts
 
@@ -143,8 +145,8 @@ class ScriptedOperator:
         step = goal.position - hand.position
         distance = float(np.linalg.norm(step))
         max_move = self.style.speed_m_s * self._dt
-        position = goal.position if distance <= max_move else hand.position + step * (
-            max_move / distance
+        position = (
+            goal.position if distance <= max_move else hand.position + step * (max_move / distance)
         )
         angle = (goal.rotation * hand.rotation.inv()).magnitude()
         fraction = min(1.0, self.style.turn_rad_s * self._dt / angle) if angle > 1e-9 else 1.0

@@ -20,8 +20,9 @@ def _object_name(sim: Simulation) -> str:
     return next(name for name in sim.object_poses() if "/" not in name and name != "table")
 
 
-def _pick(sim: Simulation, grasp_frame: str, axis_yaw: float, period: float,
-          grasp_depth: float = 0.0) -> Iterator[Waypoint]:
+def _pick(
+    sim: Simulation, grasp_frame: str, axis_yaw: float, period: float, grasp_depth: float = 0.0
+) -> Iterator[Waypoint]:
     """Hover over `grasp_frame`, descend with the fingers aligned, close, wait.
 
     Poses are read again after each waypoint: objects may still be settling after a reset.
@@ -56,7 +57,9 @@ def pick_place(sim: Simulation) -> Iterator[Waypoint]:
     yield Waypoint(at([*hand.position[:2], carry_z], hand.rotation), True, 0.03, label="lift")
     yield Waypoint(at([*target[:2], carry_z], hand.rotation), True, 0.02, label="carry")
     yield Waypoint(at([*target[:2], target[2] + 0.17], hand.rotation), True, 0.02, label="lower")
-    yield Waypoint(at([*target[:2], target[2] + 0.17], hand.rotation), False, 0.05, 0.4, label="drop")
+    yield Waypoint(
+        at([*target[:2], target[2] + 0.17], hand.rotation), False, 0.05, 0.4, label="drop"
+    )
     yield Waypoint(at([*target[:2], carry_z], hand.rotation), False, 0.03, label="retreat")
 
 

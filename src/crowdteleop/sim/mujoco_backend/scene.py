@@ -50,8 +50,12 @@ def _look_at(position: tuple[float, float, float], target: tuple[float, float, f
     return " ".join(f"{v:.4f}" for v in (*right, *up))
 
 
-def _camera(name: str, position: tuple[float, float, float],
-            target: tuple[float, float, float], fovy: float = 45.0) -> str:
+def _camera(
+    name: str,
+    position: tuple[float, float, float],
+    target: tuple[float, float, float],
+    fovy: float = 45.0,
+) -> str:
     pos = " ".join(f"{v:g}" for v in position)
     axes = _look_at(position, target)
     return f'<camera name="{name}" pos="{pos}" xyaxes="{axes}" fovy="{fovy:g}"/>'
@@ -60,18 +64,25 @@ def _camera(name: str, position: tuple[float, float, float],
 def _actuators() -> str:
     servo, feed_forward = [], []
     for name, _, (low, high), kp, kv, _ in _JOINTS:
-        servo.append(f'<intvelocity name="{name}_servo" joint="{name}" kp="{kp:g}" '
-                     f'actrange="{low:g} {high:g}"/>')
+        servo.append(
+            f'<intvelocity name="{name}_servo" joint="{name}" kp="{kp:g}" '
+            f'actrange="{low:g} {high:g}"/>'
+        )
         feed_forward.append(f'<velocity name="{name}_velocity" joint="{name}" kv="{kv:g}"/>')
-    fingers = [f'<position name="{j}_position" joint="{j}" kp="400" dampratio="1" '
-               f'ctrlrange="0 {FINGER_TRAVEL}" forcerange="-20 20"/>' for j in FINGER_JOINTS]
+    fingers = [
+        f'<position name="{j}_position" joint="{j}" kp="400" dampratio="1" '
+        f'ctrlrange="0 {FINGER_TRAVEL}" forcerange="-20 20"/>'
+        for j in FINGER_JOINTS
+    ]
     return "\n    ".join(servo + feed_forward + fingers)
 
 
 def _joint(index: int) -> str:
     name, axis, (low, high), _, _, damping = _JOINTS[index]
-    return (f'<joint name="{name}" axis="{axis}" range="{low:g} {high:g}" damping="{damping:g}" '
-            'armature="0.05"/>')
+    return (
+        f'<joint name="{name}" axis="{axis}" range="{low:g} {high:g}" damping="{damping:g}" '
+        'armature="0.05"/>'
+    )
 
 
 def _finger(side: str, sign: int) -> str:
@@ -91,11 +102,13 @@ def _finger(side: str, sign: int) -> str:
 def lift_scene_xml() -> str:
     """The lift task: the arm, a table and a red 4.5 cm cube on it."""
     bx, by, bz = ROBOT_BASE_POS
-    cameras = "\n    ".join((
-        _camera("frontview", (1.6, 0.0, 1.45), (-0.15, 0.0, 0.95)),
-        _camera("agentview", (0.55, 0.0, 1.45), (-0.12, 0.0, 0.82), fovy=55.0),
-        _camera("sideview", (-0.1, 1.5, 1.45), (-0.1, 0.0, 0.95)),
-    ))
+    cameras = "\n    ".join(
+        (
+            _camera("frontview", (1.6, 0.0, 1.45), (-0.15, 0.0, 0.95)),
+            _camera("agentview", (0.55, 0.0, 1.45), (-0.12, 0.0, 0.82), fovy=55.0),
+            _camera("sideview", (-0.1, 1.5, 1.45), (-0.1, 0.0, 0.95)),
+        )
+    )
     return f"""<mujoco model="crowdteleop_lift">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{TIMESTEP}" integrator="implicitfast" cone="elliptic" impratio="10"/>

@@ -7,25 +7,21 @@ directly onto the scene's joint-velocity servos, so no controller code is needed
 
 from __future__ import annotations
 
-from crowdteleop.sim.gl import choose_gl_backend
+import mujoco
+import numpy as np
 
-choose_gl_backend()
-
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
-
-from crowdteleop.errors import (  # noqa: E402
+from crowdteleop.errors import (
     ConfigError,
     InvalidActionError,
     InvalidStateError,
     UnknownRobotError,
 )
-from crowdteleop.sim.config import SimConfig  # noqa: E402
-from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms  # noqa: E402
-from crowdteleop.sim.mujoco_backend import scene  # noqa: E402
-from crowdteleop.sim.registry import TaskSpec, get_task  # noqa: E402
-from crowdteleop.sim.rendering import CameraRenderer  # noqa: E402
-from crowdteleop.sim.types import (  # noqa: E402
+from crowdteleop.sim.config import SimConfig
+from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms
+from crowdteleop.sim.mujoco_backend import scene
+from crowdteleop.sim.registry import TaskSpec, get_task
+from crowdteleop.sim.rendering import CameraRenderer
+from crowdteleop.sim.types import (
     ActionSpec,
     ContactEvent,
     KinematicModel,
@@ -74,8 +70,10 @@ class MujocoSimulation:
         n = len(scene.ARM_JOINTS)
         speed = config.max_joint_speed
         self.action_spec = ActionSpec(
-            "joint-velocity", n + 1,
-            np.append(np.full(n, -speed), -1.0), np.append(np.full(n, speed), 1.0),
+            "joint-velocity",
+            n + 1,
+            np.append(np.full(n, -speed), -1.0),
+            np.append(np.full(n, speed), 1.0),
         )
         self._contacts = self._make_contact_reader()
         self._closed = False
@@ -120,7 +118,13 @@ class MujocoSimulation:
         x, y = rng.uniform(-CUBE_XY_RANGE, CUBE_XY_RANGE, size=2)
         yaw = rng.uniform(-np.pi, np.pi)
         data.qpos[self._cube_qpos : self._cube_qpos + 7] = (
-            x, y, self._cube_rest_z, np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)
+            x,
+            y,
+            self._cube_rest_z,
+            np.cos(yaw / 2),
+            0.0,
+            0.0,
+            np.sin(yaw / 2),
         )
         data.act[self._servo_act] = scene.HOME_QPOS
         mujoco.mj_forward(model, data)

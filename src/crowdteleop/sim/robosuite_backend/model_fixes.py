@@ -14,7 +14,7 @@ import mujoco
 
 
 def static_parent_pairs(model: mujoco.MjModel) -> list[tuple[str, str]]:
-    """(parent, child) body pairs that MuJoCo's parent filter misses: jointed child, static parent."""
+    """(parent, child) pairs MuJoCo's parent filter misses: jointed child, static parent."""
     pairs = []
     for body in range(1, model.nbody):
         parent = int(model.body_parentid[body])

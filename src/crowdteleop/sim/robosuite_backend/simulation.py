@@ -5,22 +5,19 @@ from __future__ import annotations
 import logging
 import os
 
-from crowdteleop.sim.gl import choose_gl_backend
-
-choose_gl_backend()
 os.environ.setdefault("PYNPUT_BACKEND", "dummy")  # robosuite.devices wants an X display
 
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
+import mujoco
+import numpy as np
 
-from crowdteleop.errors import InvalidActionError, InvalidStateError, UnknownRobotError  # noqa: E402
-from crowdteleop.sim.config import SimConfig  # noqa: E402
-from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms  # noqa: E402
-from crowdteleop.sim.registry import TaskSpec, get_task  # noqa: E402
-from crowdteleop.sim.rendering import CameraRenderer  # noqa: E402
-from crowdteleop.sim.robosuite_backend import model_fixes, tasks  # noqa: E402
-from crowdteleop.sim.robosuite_backend.controllers import composite_controller_config  # noqa: E402
-from crowdteleop.sim.types import (  # noqa: E402
+from crowdteleop.errors import InvalidActionError, InvalidStateError, UnknownRobotError
+from crowdteleop.sim.config import SimConfig
+from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms
+from crowdteleop.sim.registry import TaskSpec, get_task
+from crowdteleop.sim.rendering import CameraRenderer
+from crowdteleop.sim.robosuite_backend import model_fixes, tasks
+from crowdteleop.sim.robosuite_backend.controllers import composite_controller_config
+from crowdteleop.sim.types import (
     ActionSpec,
     ContactEvent,
     KinematicModel,
@@ -31,6 +28,8 @@ from crowdteleop.sim.types import (  # noqa: E402
 )
 
 logging.getLogger("robosuite").setLevel(logging.ERROR)
+
+COLLISION_GEOM_GROUP = 0  # robosuite draws visual meshes (group 1) and hides collision geoms
 
 SINGLE_ARM_ROBOTS = ("Sawyer", "Panda", "UR5e", "IIWA", "Kinova3", "Jaco")
 
@@ -68,7 +67,7 @@ class RobosuiteSimulation:
         self._data: mujoco.MjData = self._env.sim.data._data
         self._robot = self._env.robots[0]
         self._arm = self._robot.arms[0]
-        self._renderer = CameraRenderer(self._model)
+        self._renderer = CameraRenderer(self._model, hidden_geom_groups=(COLLISION_GEOM_GROUP,))
         self.cameras = self._renderer.cameras
         self.action_spec = self._make_action_spec()
         self._arm_qpos_index = np.array(self._robot._ref_joint_pos_indexes)
@@ -111,7 +110,9 @@ class RobosuiteSimulation:
         self._data.qacc_warmstart[:] = 0.0
         _, reward, _, _ = self._env.step(action)
         success = self.success()
-        return StepResult(float(reward), success, self.contacts(), tasks.progress(self._env, success))
+        return StepResult(
+            float(reward), success, self.contacts(), tasks.progress(self._env, success)
+        )
 
     def success(self) -> bool:
         return bool(self._env._check_success())
@@ -158,7 +159,12 @@ class RobosuiteSimulation:
     def _site_velocity(self) -> np.ndarray:
         rotational_linear = np.zeros(6)
         mujoco.mj_objectVelocity(
-            self._model, self._data, mujoco.mjtObj.mjOBJ_SITE, self._ee_site_id, rotational_linear, 0
+            self._model,
+            self._data,
+            mujoco.mjtObj.mjOBJ_SITE,
+            self._ee_site_id,
+            rotational_linear,
+            0,
         )
         return np.concatenate([rotational_linear[3:], rotational_linear[:3]])
 
@@ -196,13 +202,14 @@ class RobosuiteSimulation:
         return ActionSpec(mode, int(low.shape[0]), np.array(low), np.array(high))
 
     def _init_gripper_geometry(self) -> None:
-        """Finger joint ranges; the open end is the one farther from the other finger."""
-        joint_ids = [self._model.joint(j).id for j in self._robot.gripper[self._arm].joints]
+        """Finger joints: open is the gripper's initial pose, closed the far end of each range."""
+        gripper = self._robot.gripper[self._arm]
+        joint_ids = [self._model.joint(j).id for j in gripper.joints]
         self._gripper_qpos_index = self._model.jnt_qposadr[joint_ids]
+        self._gripper_open_q = np.asarray(gripper.init_qpos, dtype=float)
         low, high = self._model.jnt_range[joint_ids].T
-        # robosuite's grippers open toward the outer limit: positive joint for the left finger.
-        self._gripper_open_q = np.where(np.abs(high) >= np.abs(low), high, low)
-        self._gripper_span = np.maximum(high - low, 1e-9)
+        far = np.where(high - self._gripper_open_q > self._gripper_open_q - low, high, low)
+        self._gripper_span = np.maximum(np.abs(far - self._gripper_open_q), 1e-9)
 
     def _make_contact_reader(self) -> ContactReader:
         model = self._model

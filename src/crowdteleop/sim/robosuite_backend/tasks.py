@@ -86,8 +86,10 @@ def progress(env: Any, success: bool) -> TaskProgress:
     held = [obj.name for obj in objects if _grasped(env, obj)]
     if held:
         return TaskProgress(
-            "grasped", f"{held[0]} grasped; {placed} of {len(objects)} {noun} {where}.",
-            placed, len(objects),
+            "grasped",
+            f"{held[0]} grasped; {placed} of {len(objects)} {noun} {where}.",
+            placed,
+            len(objects),
         )
     return TaskProgress(
         "reach", f"{placed} of {len(objects)} {noun} {where}.", placed, len(objects)

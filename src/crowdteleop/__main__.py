@@ -1,0 +1,3 @@
+from crowdteleop.cli import app
+
+app(prog_name="crowdteleop")

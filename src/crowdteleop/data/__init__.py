@@ -1,0 +1,1 @@
+"""Demonstration data: recording, storage, video."""
