@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from crowdteleop.errors import InvalidActionError, InvalidStateError
+
 
 @dataclass(frozen=True)
 class Pose:
@@ -81,6 +83,27 @@ class ActionSpec:
     size: int
     low: np.ndarray
     high: np.ndarray
+
+    def validate(self, action: np.ndarray) -> np.ndarray:
+        """The action as floats clipped to the bounds; wrong shape or NaN / inf is refused."""
+        action = np.asarray(action, dtype=float)
+        if action.shape != (self.size,):
+            raise InvalidActionError(
+                f"action must have shape ({self.size},) for {self.mode}, got {action.shape}"
+            )
+        if not np.all(np.isfinite(action)):
+            raise InvalidActionError("action contains NaN or infinity")
+        return np.clip(action, self.low, self.high)
+
+
+def validate_state(state: np.ndarray, size: int) -> np.ndarray:
+    """A flat [time, qpos, qvel] vector of the expected size, finite, as floats."""
+    state = np.asarray(state, dtype=float)
+    if state.shape != (size,):
+        raise InvalidStateError(f"state must have shape ({size},), got {state.shape}")
+    if not np.all(np.isfinite(state)):
+        raise InvalidStateError("state contains NaN or infinity")
+    return state
 
 
 @dataclass(frozen=True)

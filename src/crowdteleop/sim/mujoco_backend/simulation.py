@@ -12,8 +12,6 @@ import numpy as np
 
 from crowdteleop.errors import (
     ConfigError,
-    InvalidActionError,
-    InvalidStateError,
     UnknownRobotError,
 )
 from crowdteleop.sim.config import SimConfig
@@ -29,6 +27,7 @@ from crowdteleop.sim.types import (
     RobotState,
     StepResult,
     TaskProgress,
+    validate_state,
 )
 
 # The scene has one arm of its own; "Sawyer" (SimConfig's default) is accepted so a config
@@ -136,15 +135,7 @@ class MujocoSimulation:
 
     # --- stepping --------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> StepResult:
-        action = np.asarray(action, dtype=float)
-        if action.shape != (self.action_spec.size,):
-            raise InvalidActionError(
-                f"action must have shape ({self.action_spec.size},) for "
-                f"{self.action_spec.mode}, got {action.shape}"
-            )
-        if not np.all(np.isfinite(action)):
-            raise InvalidActionError("action contains NaN or infinity")
-        action = np.clip(action, self.action_spec.low, self.action_spec.high)
+        action = self.action_spec.validate(action)
         qdot, gripper = action[:-1], action[-1]
         data = self._data
         # Cold solver start (see RobosuiteSimulation.step) and a servo set point re-anchored at
@@ -170,12 +161,8 @@ class MujocoSimulation:
         return np.concatenate(([data.time], data.qpos, data.qvel))
 
     def set_state(self, state: np.ndarray) -> None:
-        state = np.asarray(state, dtype=float)
         nq, nv = self._model.nq, self._model.nv
-        if state.shape != (1 + nq + nv,):
-            raise InvalidStateError(f"state must have shape ({1 + nq + nv},), got {state.shape}")
-        if not np.all(np.isfinite(state)):
-            raise InvalidStateError("state contains NaN or infinity")
+        state = validate_state(state, 1 + nq + nv)
         data = self._data
         data.time = state[0]
         data.qpos[:] = state[1 : 1 + nq]

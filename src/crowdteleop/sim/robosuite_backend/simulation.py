@@ -10,7 +10,7 @@ os.environ.setdefault("PYNPUT_BACKEND", "dummy")  # robosuite.devices wants an X
 import mujoco
 import numpy as np
 
-from crowdteleop.errors import InvalidActionError, InvalidStateError, UnknownRobotError
+from crowdteleop.errors import UnknownRobotError
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms
 from crowdteleop.sim.registry import TaskSpec, get_task
@@ -25,6 +25,7 @@ from crowdteleop.sim.types import (
     RobotState,
     StepResult,
     TaskProgress,
+    validate_state,
 )
 
 logging.getLogger("robosuite").setLevel(logging.ERROR)
@@ -95,15 +96,7 @@ class RobosuiteSimulation:
 
     # --- stepping --------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> StepResult:
-        action = np.asarray(action, dtype=float)
-        if action.shape != (self.action_spec.size,):
-            raise InvalidActionError(
-                f"action must have shape ({self.action_spec.size},) for "
-                f"{self.action_spec.mode}, got {action.shape}"
-            )
-        if not np.all(np.isfinite(action)):
-            raise InvalidActionError("action contains NaN or infinity")
-        action = np.clip(action, self.action_spec.low, self.action_spec.high)
+        action = self.action_spec.validate(action)
         # MuJoCo warm-starts its constraint solver from the previous step's accelerations, a
         # hidden state outside [time, qpos, qvel]. Starting each control step cold makes the
         # step a function of the recorded state and the action alone (exact restore / replay).
@@ -122,10 +115,7 @@ class RobosuiteSimulation:
         return np.array(self._env.sim.get_state().flatten())
 
     def set_state(self, state: np.ndarray) -> None:
-        state = np.asarray(state, dtype=float)
-        expected = 1 + self._model.nq + self._model.nv
-        if state.shape != (expected,):
-            raise InvalidStateError(f"state must have shape ({expected},), got {state.shape}")
+        state = validate_state(state, 1 + self._model.nq + self._model.nv)
         self._env.sim.set_state_from_flattened(state)
         self._env.sim.forward()
 
