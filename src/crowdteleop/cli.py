@@ -93,6 +93,8 @@ def _film_demo(
                 video.write(sim.render(camera, width, height))
                 bar.advance(job, sim.control_dt)
 
-            return run_episode(teleop, operator, seed, on_step=film)
+            result = run_episode(teleop, operator, seed, on_step=film)
+            bar.update(job, completed=limit)  # an early success finishes the bar
+            return result
     finally:
         sim.close()
