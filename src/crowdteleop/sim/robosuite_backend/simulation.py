@@ -15,8 +15,13 @@ from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms
 from crowdteleop.sim.registry import TaskSpec, get_task
 from crowdteleop.sim.rendering import CameraRenderer
-from crowdteleop.sim.robosuite_backend import model_fixes, tasks
-from crowdteleop.sim.robosuite_backend.controllers import composite_controller_config
+from crowdteleop.sim.robosuite_backend import fast_model, model_fixes, tasks
+from crowdteleop.sim.robosuite_backend.controllers import (
+    arm_controller_config,
+    composite_controller_config,
+)
+from crowdteleop.sim.robosuite_backend.fast_control import ArmLayout, FoldedArm
+from crowdteleop.sim.robosuite_backend.fast_step import FastStepper, Gains, finger_direction
 from crowdteleop.sim.types import (
     ActionSpec,
     ContactEvent,
@@ -78,6 +83,8 @@ class RobosuiteSimulation:
         self._base_body_id = self._model.body(self._robot.robot_model.root_body).id
         self._contacts = self._make_contact_reader()
         self._init_gripper_geometry()
+        self._stepper = self._make_stepper()
+        self._stepper.start_episode(self._data)
 
     # --- lifecycle -------------------------------------------------------------------------
     @property
@@ -89,6 +96,7 @@ class RobosuiteSimulation:
             # Reseed in place: robosuite's placement samplers hold a reference to env.rng.
             self._env.rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
         self._env.reset()
+        self._stepper.start_episode(self._data)
 
     def close(self) -> None:
         self._renderer.close()
@@ -97,11 +105,8 @@ class RobosuiteSimulation:
     # --- stepping --------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> StepResult:
         action = self.action_spec.validate(action)
-        # MuJoCo warm-starts its constraint solver from the previous step's accelerations, a
-        # hidden state outside [time, qpos, qvel]. Starting each control step cold makes the
-        # step a function of the recorded state and the action alone (exact restore / replay).
-        self._data.qacc_warmstart[:] = 0.0
-        _, reward, _, _ = self._env.step(action)
+        self._stepper.step(self._data, action)
+        reward = self._env.reward(action)
         success = self.success()
         return StepResult(
             float(reward), success, self.contacts(), tasks.progress(self._env, success)
@@ -175,12 +180,19 @@ class RobosuiteSimulation:
         return self._xml
 
     def _load_fixed_model(self) -> None:
-        """Recompile robosuite's model with `model_fixes` applied, keeping the XML we compiled."""
+        """Recompile robosuite's model for our fast path.
+
+        `self._xml` (what demonstrations save, what robosuite replays) is robosuite's model with
+        `model_fixes`; the compiled physics model adds `fast_model`'s actuators to it.
+        """
         pairs = model_fixes.static_parent_pairs(self._env.sim.model._model)
+        robot = self._env.robots[0]
 
         def fix(xml: str) -> str:
             self._xml = model_fixes.add_contact_excludes(xml, pairs)
-            return self._xml
+            return fast_model.fast_physics_xml(
+                self._xml, robot.robot_model.root_body, robot.robot_joints
+            )
 
         self._env.set_xml_processor(fix)
         self._env.reset_from_xml_string(self._env.model.get_xml())
@@ -190,6 +202,32 @@ class RobosuiteSimulation:
         low, high = self._env.action_spec
         mode = self.config.action_mode
         return ActionSpec(mode, int(low.shape[0]), np.array(low), np.array(high))
+
+    def _make_stepper(self) -> FastStepper:
+        robot, arm = self._robot, self._arm
+        layout = ArmLayout(
+            qpos=self._arm_qpos_index,
+            dofs=self._arm_qvel_index,
+            motors=np.array(robot._ref_arm_joint_actuator_indexes),
+            ee_site=self._ee_site_id,
+        )
+        part = arm_controller_config(self.config, self.control_dt)
+        scale = np.asarray(part["output_max"], dtype=float) / np.asarray(part["input_max"])
+        gains = Gains(
+            kp=float(part["kp"]),
+            kd=2.0 * np.sqrt(part["kp"]) * part["damping_ratio"],
+            output_max=np.broadcast_to(scale, (self.action_spec.size - 1,)).copy(),
+        )
+        return FastStepper(
+            self._model,
+            FoldedArm(self._model, layout),
+            self.config.action_mode,
+            gains,
+            self._base_body_id,
+            np.array(robot._ref_joint_gripper_actuator_indexes[arm]),
+            finger_direction(robot.gripper[arm]),
+            self.control_dt,
+        )
 
     def _init_gripper_geometry(self) -> None:
         """Finger joints: open is the gripper's initial pose, closed the far end of each range."""

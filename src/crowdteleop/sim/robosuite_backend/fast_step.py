@@ -1,0 +1,99 @@
+"""One control step of a robosuite scene without robosuite's per-substep Python.
+
+Arm: `FoldedArm` turns the action into actuator settings once; MuJoCo then runs all substeps
+with `mj_step(model, data, nstep)`. Gripper: robosuite's GRIP mapping (actuator range centre
+plus half-range times the finger command), but stateless: robosuite ramps its finger command by
+0.2 per step and keeps it between steps, a hidden state that a restored [time, qpos, qvel]
+cannot carry; we command the action's value directly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from crowdteleop.sim.robosuite_backend.fast_control import FoldedArm
+
+
+@dataclass(frozen=True)
+class Gains:
+    """The arm controller's gains (from `controllers.arm_controller_config`)."""
+
+    kp: float
+    kd: float
+    output_max: np.ndarray  # action unit -> metres / radians (osc) or radians (joint servo)
+
+
+def finger_direction(gripper: Any) -> np.ndarray:
+    """Each finger actuator's command when robosuite's gripper is fully closed (+1 / -1)."""
+    saved = np.array(gripper.current_action, copy=True)
+    try:
+        gripper.current_action = np.zeros_like(saved)
+        command = saved
+        for _ in range(int(2.0 / gripper.speed) + 2):
+            command = gripper.format_action(np.array([1.0]))
+        return np.sign(command)
+    finally:
+        gripper.current_action = saved
+
+
+class FastStepper:
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        arm: FoldedArm,
+        mode: str,
+        gains: Gains,
+        base_body: int,
+        gripper_actuators: np.ndarray,
+        gripper_closed: np.ndarray,
+        control_dt: float,
+    ) -> None:
+        self._model = model
+        self.arm = arm
+        self.mode = mode
+        self.gains = gains
+        self._base_body = base_body
+        self._gripper_actuators = gripper_actuators
+        low, high = model.actuator_ctrlrange[gripper_actuators].T
+        self._gripper_centre, self._gripper_half = (high + low) / 2, (high - low) / 2
+        self._gripper_closed = gripper_closed
+        self.substeps = max(1, round(control_dt / model.opt.timestep))
+        self.initial_joints = np.zeros(len(arm.layout.qpos))
+
+    def start_episode(self, data: mujoco.MjData) -> None:
+        """robosuite's OSC pulls the arm's null space toward the episode's first posture."""
+        self.initial_joints = data.qpos[self.arm.layout.qpos].copy()
+
+    def step(self, data: mujoco.MjData, action: np.ndarray) -> None:
+        arm_action, gripper = action[:-1], action[-1]
+        if self.mode == "osc-pose":
+            self._osc(data, arm_action)
+        else:
+            goal = data.qpos[self.arm.layout.qpos] + arm_action * self.gains.output_max
+            self.arm.joint_servo(data, goal, self.gains.kp, self.gains.kd)
+        data.ctrl[self._gripper_actuators] = (
+            self._gripper_centre + self._gripper_half * self._gripper_closed * gripper
+        )
+        # MuJoCo warm-starts its constraint solver from the previous step's accelerations, a
+        # hidden state outside [time, qpos, qvel]. Starting each control step cold makes the
+        # step a function of the recorded state and the action alone (exact restore / replay).
+        data.qacc_warmstart[:] = 0.0
+        mujoco.mj_step(self._model, data, nstep=self.substeps)
+        mujoco.mj_forward(self._model, data)  # observe (and linearize next time) at the new q
+
+    def _osc(self, data: mujoco.MjData, arm_action: np.ndarray) -> None:
+        """robosuite's OSC_POSE delta goal, input in the base frame, 'achieved' update mode."""
+        delta = arm_action * self.gains.output_max
+        base = data.xmat[self._base_body].reshape(3, 3)
+        site = self.arm.layout.ee_site
+        goal_position = data.site_xpos[site] + base @ delta[:3]
+        turn = Rotation.from_rotvec(delta[3:]).as_matrix()
+        goal_orientation = base @ turn @ base.T @ data.site_xmat[site].reshape(3, 3)
+        self.arm.osc(
+            data, goal_position, goal_orientation, self.initial_joints, self.gains.kp, self.gains.kd
+        )
