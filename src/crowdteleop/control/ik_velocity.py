@@ -10,11 +10,13 @@ import mink
 import mujoco
 import numpy as np
 
+from crowdteleop.sim.mjcf import with_arena
 from crowdteleop.sim.types import KinematicModel, Pose, RobotState
 
 IK_ITERATIONS = 4
 IK_STEP_S = 1.0  # each iteration takes a full Gauss-Newton step toward the target
 POSITION_TOLERANCE_M = 5e-4
+IK_ARENA = "1M"  # kinematics only: no contacts, no constraints
 
 
 class IKVelocityController:
@@ -22,7 +24,7 @@ class IKVelocityController:
 
     def __init__(self, kinematics: KinematicModel, kv: float) -> None:
         self.kv = kv
-        self._model = mujoco.MjModel.from_xml_string(kinematics.mjcf_xml)
+        self._model = mujoco.MjModel.from_xml_string(with_arena(kinematics.mjcf_xml, IK_ARENA))
         joint_ids = [self._model.joint(name).id for name in kinematics.arm_joints]
         self._arm_qpos = self._model.jnt_qposadr[joint_ids]
         self._arm_dofs = self._model.jnt_dofadr[joint_ids]
@@ -41,10 +43,13 @@ class IKVelocityController:
         # Only the arm may move in the IK: other joints (fingers, objects) get huge damping.
         self._damping = np.full(self._model.nv, 1e3)
         self._damping[self._arm_dofs] = 1e-3
+        self._other_dofs = np.setdiff1d(np.arange(self._model.nv), self._arm_dofs)
         self._site_id = self._model.site(kinematics.end_effector_site).id
+        self.reset()
 
     def reset(self) -> None:
-        """Stateless between steps: nothing to forget."""
+        self._last_target: Pose | None = None
+        self._last_setpoint = np.zeros(len(self._arm_qpos))
 
     def joint_setpoint(self, target: Pose, robot: RobotState) -> np.ndarray:
         """q*: arm joint positions that put the end effector at `target`."""
@@ -65,7 +70,7 @@ class IKVelocityController:
                 damping=1e-3,
                 limits=self._limits,
             )
-            velocity[np.setdiff1d(np.arange(self._model.nv), self._arm_dofs)] = 0.0
+            velocity[self._other_dofs] = 0.0
             self._configuration.integrate_inplace(velocity, IK_STEP_S)
             error = self._configuration.data.site_xpos[self._site_id] - target.position
             if np.linalg.norm(error) < POSITION_TOLERANCE_M:
@@ -73,7 +78,11 @@ class IKVelocityController:
         return self._configuration.q[self._arm_qpos].copy()
 
     def action(self, target: Pose, gripper_closed: bool, robot: RobotState) -> np.ndarray:
-        q_star = self.joint_setpoint(target, robot)
+        if target is self._last_target:  # holding still (clutch released): same q*, no IK
+            q_star = self._last_setpoint
+        else:
+            q_star = self.joint_setpoint(target, robot)
+            self._last_target, self._last_setpoint = target, q_star
         qdot = -self.kv * (robot.joint_positions - q_star)
         qdot = np.clip(qdot, -self._speed_limits, self._speed_limits)
         return np.append(qdot, 1.0 if gripper_closed else -1.0)

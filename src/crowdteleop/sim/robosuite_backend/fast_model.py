@@ -20,9 +20,9 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 
-# A robosuite scene with a handful of objects uses well under 10 MiB of constraint arena;
-# robosuite asks for njmax = nconmax = 5000, about 0.7 GiB per simulation.
-ARENA = "32M"
+from crowdteleop.sim.mjcf import with_arena
+
+ARENA = "32M"  # a scene of a few objects uses < 10 MiB (see `with_arena`)
 
 STIFFNESS_PREFIX = "ct_stiffness_"
 DAMPING_PREFIX = "ct_damping_"
@@ -53,13 +53,6 @@ def fast_physics_xml(xml: str, robot_root_body: str, arm_joints: Sequence[str]) 
     for body in _arm_bodies(root, robot_root_body, arm_joints):
         body.set("gravcomp", "1")
 
-    size = root.find("size")
-    if size is None:
-        size = ET.SubElement(root, "size")
-    for attribute in ("njmax", "nconmax", "nstack"):
-        size.attrib.pop(attribute, None)
-    size.set("memory", ARENA)
-
     tendon = root.find("tendon")
     if tendon is None:
         tendon = ET.SubElement(root, "tendon")
@@ -76,4 +69,4 @@ def fast_physics_xml(xml: str, robot_root_body: str, arm_joints: Sequence[str]) 
                 actuator, "general", name=name, tendon=name, gaintype="fixed",
                 biastype="affine", gainprm="0", biasprm="0 0 0", ctrllimited="false",
             )
-    return ET.tostring(root, encoding="unicode")
+    return with_arena(ET.tostring(root, encoding="unicode"), ARENA)
