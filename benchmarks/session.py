@@ -1,0 +1,275 @@
+"""What one teleoperation session costs in CPU: the figure that decides how many workers one
+machine serves. Each (task, mode) runs in a fresh child process; see benchmarks/README.md.
+
+    .venv/bin/python benchmarks/session.py --tasks lift --seconds 20 --json out/bench-session.json
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Annotated, Any
+
+import av
+import numpy as np
+import psutil
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from _measure import MIB, machine_facts, median
+from crowdteleop.control import ControlConfig, DeviceCommand, Teleoperator
+from crowdteleop.control.scripted import ScriptedOperator
+from crowdteleop.control.scripted.episode import SUCCESS_HOLD_STEPS
+from crowdteleop.sim import SimConfig, make_simulation
+from sim import _console, _parse_tasks, facts_table
+
+app = typer.Typer(add_completion=False)
+MARKER = "BENCH-SESSION "
+MODES = ("busy", "idle")
+TARGET_PERCENT = {"busy": 20.0, "idle": 3.0}  # of one core: >= 8 busy sessions on 2 cores
+WARMUP_TICKS = 20  # unpaced and unmeasured: GL context, renderer, encoder, first IK solves
+PHASES = ("command", "step", "render", "encode")
+DEFAULT_TASKS = "lift,pick-place-can,nut-assembly-round"
+
+
+@dataclass
+class SessionResult:
+    """One session's measurement window (the warm-up excluded)."""
+
+    task: str
+    mode: str
+    wall_s: float
+    cpu_s: float  # user + system of every thread of the child process
+    ticks: int
+    overruns: int
+    encoded: int
+    episodes: int
+    successes: int
+    rss_mib: float
+    phase_ms: dict[str, float | None]  # median per tick
+
+    @property
+    def cpu_percent(self) -> float:
+        return 100.0 * self.cpu_s / self.wall_s
+
+
+def make_encoder(width: int, height: int, hz: int) -> Any:
+    """VP8 as a WebRTC server sends it: realtime, no lookahead, one thread, 500 kbps (aiortc's
+    starting bitrate). One thread because many sessions share the cores."""
+    codec = av.CodecContext.create("libvpx", "w")
+    codec.width, codec.height, codec.pix_fmt = width, height, "yuv420p"
+    codec.bit_rate = 500_000
+    codec.framerate, codec.time_base = Fraction(hz), Fraction(1, hz)
+    codec.thread_count = 1
+    codec.options = {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0"}
+    return codec
+
+
+class Session:
+    """One worker's session per tick: a command, `Teleoperator.step`, a render, a VP8 encode.
+
+    busy: a `ScriptedOperator` works the task (reset with the next seed when an episode ends), so
+    the arm and objects really move and every frame is new. idle: the worker is connected but the
+    clutch is released; a frame identical to the previous one is not encoded (nothing to send)."""
+
+    def __init__(self, task: str, busy: bool, opts: dict[str, Any]) -> None:
+        control = ControlConfig(controller=opts["controller"])
+        config = SimConfig(task=task, robot=opts["robot"], action_mode=control.action_mode)
+        self.sim = make_simulation(config)
+        self.teleop = Teleoperator(self.sim, control)
+        self.operator = ScriptedOperator(self.sim, mapping=control.mapping, seed=0)
+        self.busy, self.camera = busy, opts["camera"]
+        self.size = (opts["width"], opts["height"])
+        self.codec = make_encoder(*self.size, round(1.0 / self.sim.control_dt))
+        self.max_steps = round(self.teleop.sim_task_time_limit() / self.sim.control_dt)
+        self.previous: np.ndarray | None = None
+        self.seed = self.pts = 0
+        self.clear()
+        self.new_episode()
+
+    def new_episode(self) -> None:
+        self.teleop.reset(self.seed)
+        self.operator.reset()
+        self.seed += 1
+        self.steps = self.held = 0
+
+    def tick(self) -> None:
+        t0 = time.perf_counter()
+        # idle: the default DeviceCommand has the clutch released (engaged=False)
+        command = self.operator.command() if self.busy else DeviceCommand(seq=self.pts)
+        t1 = time.perf_counter()
+        success = self.teleop.step(command).result.success
+        t2 = time.perf_counter()
+        frame = self.sim.render(self.camera, *self.size)
+        t3 = time.perf_counter()
+        unchanged = not self.busy and (
+            frame is self.previous
+            or (self.previous is not None and np.array_equal(frame, self.previous))
+        )
+        if not unchanged:
+            video = av.VideoFrame.from_ndarray(frame, format="rgb24").reformat(format="yuv420p")
+            video.pts = self.pts
+            self.codec.encode(video)  # packets discarded: sending is not measured here
+            self.encoded += 1
+        self.previous, self.pts = frame, self.pts + 1
+        t4 = time.perf_counter()
+        for name, start, end in zip(PHASES, (t0, t1, t2, t3), (t1, t2, t3, t4), strict=True):
+            self.phases[name].append((end - start) * 1e3)
+        if self.busy:
+            self.steps += 1
+            self.held = self.held + 1 if success else 0
+            won = self.held >= SUCCESS_HOLD_STEPS  # as `run_episode` ends an episode
+            if won or self.steps >= self.max_steps or (self.operator.finished and not success):
+                self.episodes, self.successes = self.episodes + 1, self.successes + won
+                self.new_episode()
+
+    def clear(self) -> None:
+        """Forget the warm-up."""
+        self.encoded = self.episodes = self.successes = 0
+        self.phases: dict[str, list[float]] = {name: [] for name in PHASES}
+
+
+def paced(tick: Callable[[], None], period: float, seconds: float) -> dict[str, Any]:
+    """Run `tick` at wall-clock slots start + k * period for `seconds`; return wall and CPU
+    seconds, ticks and overruns. Slots are absolute, so sleep error does not accumulate. A tick
+    that ends after the next slot is an overrun: the next tick starts at once and slots missed
+    entirely are dropped, as a live session drops frames rather than bursting to catch up.
+    CPU is `time.process_time()`: user + system of every thread (llvmpipe's included)."""
+    start, cpu_start = time.perf_counter(), time.process_time()
+    ticks = overruns = slot = 0
+    while True:
+        tick()
+        ticks += 1
+        now = time.perf_counter()
+        if now - start >= seconds:
+            break
+        slot += 1
+        if now > start + slot * period:
+            overruns += 1
+            slot = max(slot, int((now - start) / period))
+        else:
+            time.sleep(start + slot * period - now)
+    wall_s, cpu_s = time.perf_counter() - start, time.process_time() - cpu_start
+    return {"wall_s": wall_s, "cpu_s": cpu_s, "ticks": ticks, "overruns": overruns}
+
+
+def run_child(task: str, mode: str, opts: dict[str, Any]) -> SessionResult:
+    """The measured process: build one session, warm it up, run the paced loop."""
+    session = Session(task, mode == "busy", opts)
+    for _ in range(WARMUP_TICKS):
+        session.tick()
+    session.clear()
+    loop = paced(session.tick, session.sim.control_dt, opts["seconds"])
+    rss_mib = psutil.Process().memory_info().rss / MIB
+    phase_ms = {name: median(values) for name, values in session.phases.items()}
+    counts = {name: getattr(session, name) for name in ("encoded", "episodes", "successes")}
+    session.sim.close()
+    return SessionResult(task, mode, **loop, **counts, rss_mib=rss_mib, phase_ms=phase_ms)
+
+
+def run_in_subprocess(task: str, mode: str, opts: dict[str, Any]) -> SessionResult:
+    """A fresh process per (task, mode): no shared caches or heap, memory released after."""
+    command = [sys.executable, str(Path(__file__).resolve()), "--child", f"{task}:{mode}"]
+    for name in ("seconds", "controller", "camera", "width", "height", "robot"):
+        command += [f"--{name}", str(opts[name])]
+    timeout = opts["seconds"] + 600
+    done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, check=False)
+    for line in reversed(done.stdout.splitlines()):
+        if line.startswith(MARKER):
+            return SessionResult(**json.loads(line.removeprefix(MARKER)))
+    tail = "\n".join((done.stderr or done.stdout).splitlines()[-15:])
+    raise RuntimeError(f"session {task}/{mode} failed (exit {done.returncode}):\n{tail}")
+
+
+def sessions_per_machine(busy_percent: float) -> int:
+    return math.floor(len(os.sched_getaffinity(0)) * 100.0 / busy_percent)
+
+
+def results_table(results: list[SessionResult], opts: dict[str, Any]) -> Table:
+    table = Table(
+        title="CPU per teleoperation session",
+        caption=(
+            f"{opts['seconds']:g} s per session at 20 Hz, {opts['controller']}, {opts['camera']} "
+            f"{opts['width']}x{opts['height']}, VP8 realtime 1 thread; CPU = process time / wall; "
+            f"ms = median per tick; sessions = floor(usable cores x 100 / busy CPU %)"
+        ),
+    )
+    columns = ["task", "mode", "CPU\n% core", "target\n%", "loop\nHz", "over-\nruns"]
+    columns += [f"{name}\nms" for name in PHASES]
+    columns += ["encoded\n%", "episodes\n(success)", "RSS\nMiB", "sessions\nhere"]
+    for name in columns:
+        table.add_column(name, justify="left" if name in ("task", "mode") else "right")
+    for r in results:
+        share, target = r.cpu_percent, TARGET_PERCENT[r.mode]
+        verdict = "[green]ok[/]" if share <= target else "[red]over[/]"
+        cells = [r.task, r.mode, f"{share:.1f}", f"<= {target:g} {verdict}"]
+        cells += [f"{r.ticks / r.wall_s:.1f}", str(r.overruns)]
+        cells += ["-" if r.phase_ms[p] is None else f"{r.phase_ms[p]:.2f}" for p in PHASES]
+        cells += [f"{100.0 * r.encoded / r.ticks:.0f}"]
+        busy = r.mode == "busy"
+        cells += [f"{r.episodes} ({r.successes})" if busy else "-", f"{r.rss_mib:.0f}"]
+        table.add_row(*cells, str(sessions_per_machine(share)) if busy else "-")
+    return table
+
+
+@app.command()
+def main(
+    tasks: Annotated[str, typer.Option(help="comma-separated task names")] = DEFAULT_TASKS,
+    seconds: Annotated[float, typer.Option(min=1, help="measured seconds per session")] = 20.0,
+    controller: Annotated[str, typer.Option(help="ik-velocity or osc")] = "ik-velocity",
+    camera: Annotated[str, typer.Option(help="camera streamed to the worker")] = "frontview",
+    width: Annotated[int, typer.Option(min=16)] = 320,
+    height: Annotated[int, typer.Option(min=16)] = 240,
+    robot: Annotated[str, typer.Option(help="robosuite arm")] = "Sawyer",
+    json_path: Annotated[
+        Path | None, typer.Option("--json", help="also write raw values here")
+    ] = None,
+    child: Annotated[str | None, typer.Option(hidden=True, help="TASK:MODE, internal")] = None,
+) -> None:
+    """Measure the CPU share of a busy and an idle session per task and print one table."""
+    if controller not in ("ik-velocity", "osc"):
+        raise typer.BadParameter(f"controller is ik-velocity or osc, got {controller!r}")
+    opts = {"seconds": seconds, "controller": controller, "camera": camera}
+    opts |= {"width": width, "height": height, "robot": robot}
+    if child is not None:
+        task, mode = child.split(":")
+        print(MARKER + json.dumps(asdict(run_child(task, mode, opts))), flush=True)
+        return
+    task_names = _parse_tasks(tasks)
+    console = _console()
+    facts = machine_facts()
+    console.print(facts_table(facts))
+    results = []
+    with Console(stderr=True).status("") as status:
+        for task in task_names:
+            for mode in MODES:
+                status.update(f"{task}: {mode} session ({seconds:g} s, own process)")
+                results.append(run_in_subprocess(task, mode, opts))
+    console.print(results_table(results, opts))
+    worst = max(r.cpu_percent for r in results if r.mode == "busy")
+    console.print(
+        f"this machine holds {sessions_per_machine(worst)} busy sessions "
+        f"(worst task, {worst:.1f}% of a core each; target >= 8 on 2 cores)"
+    )
+    if any(r.overruns for r in results):
+        console.print("[yellow]overruns: those sessions did not keep 20 Hz; their share is a floor")
+    if json_path is not None:
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        rows = [asdict(r) | {"cpu_percent": r.cpu_percent} for r in results]
+        report = {"machine": facts, "options": opts | {"tasks": task_names}, "results": rows}
+        report["sessions_per_machine"] = sessions_per_machine(worst)
+        json_path.write_text(json.dumps(report, indent=2))
+        console.print(f"raw values written to {json_path}")
+
+
+if __name__ == "__main__":
+    app()
