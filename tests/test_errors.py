@@ -20,8 +20,8 @@ from crowdteleop.errors import (
     UnknownCameraError,
     UnknownRobotError,
 )
+from crowdteleop.gl import render_backend_error
 from crowdteleop.sim import SimConfig, make_simulation
-from crowdteleop.sim.gl import render_backend_error
 
 
 def test_unknown_task_lists_the_known_ones():

@@ -1,6 +1,6 @@
 """crowdteleop: crowdsourced robot teleoperation on simulated arms (after RoboTurk, CoRL 2018)."""
 
-from crowdteleop.sim.gl import choose_gl_backend
+from crowdteleop.gl import choose_gl_backend
 
 # MuJoCo and PyOpenGL read MUJOCO_GL / PYOPENGL_PLATFORM once, when first imported, and several
 # of our dependencies (mink, robosuite) import mujoco. Choosing here, before any submodule can

@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 
 from crowdteleop.errors import InvalidResolutionError, UnknownCameraError
-from crowdteleop.sim.gl import render_backend_error
+from crowdteleop.gl import render_backend_error
 
 MIN_SIDE = 16
 MAX_WIDTH = 1920

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -19,8 +20,13 @@ class Pose:
 
     @classmethod
     def from_matrix(cls, position: np.ndarray, rotation_matrix: np.ndarray) -> Pose:
-        quat = Rotation.from_matrix(np.asarray(rotation_matrix).reshape(3, 3)).as_quat()
-        return cls(np.array(position, dtype=float), quat)
+        """From a position and a 3x3 (or flat 9) rotation matrix, as MuJoCo stores them.
+
+        MuJoCo's own conversion: 20x cheaper than scipy's, and it runs every control step.
+        """
+        wxyz = np.empty(4)
+        mujoco.mju_mat2Quat(wxyz, np.asarray(rotation_matrix, dtype=float).reshape(9))
+        return cls(np.array(position, dtype=float), wxyz[[1, 2, 3, 0]])
 
     @property
     def rotation(self) -> Rotation:
