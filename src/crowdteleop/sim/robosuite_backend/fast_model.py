@@ -47,9 +47,32 @@ def _arm_bodies(root: ET.Element, robot_root: str, arm_joints: Sequence[str]) ->
     raise ValueError(f"body {robot_root!r} not found in the model")
 
 
-def fast_physics_xml(xml: str, robot_root_body: str, arm_joints: Sequence[str]) -> str:
-    """`xml` plus gravity compensation on the robot, folded-controller tendons, sized arena."""
+def _park(root: ET.Element, body_names: Sequence[str]) -> None:
+    """Objects a task does not use float where robosuite parks them, touching nothing.
+
+    robosuite drops them at (10, 10, 10); they fall and jostle on the floor for ever, which
+    costs contacts every substep and keeps the scene from ever coming to rest.
+    """
+    wanted = set(body_names)
+    for body in root.iter("body"):
+        if body.get("name") in wanted:
+            for part in body.iter("body"):
+                part.set("gravcomp", "1")
+            for geom in body.iter("geom"):
+                geom.set("contype", "0")
+                geom.set("conaffinity", "0")
+
+
+def fast_physics_xml(
+    xml: str,
+    robot_root_body: str,
+    arm_joints: Sequence[str],
+    parked_bodies: Sequence[str] = (),
+) -> str:
+    """`xml` plus gravity compensation on the robot, folded-controller tendons, parked unused
+    objects and a sized arena."""
     root = ET.fromstring(xml)
+    _park(root, parked_bodies)
     for body in _arm_bodies(root, robot_root_body, arm_joints):
         body.set("gravcomp", "1")
 

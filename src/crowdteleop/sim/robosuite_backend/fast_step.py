@@ -9,6 +9,7 @@ cannot carry; we command the action's value directly.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,6 +18,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from crowdteleop.sim.robosuite_backend.fast_control import FoldedArm
+
+# A scene whose every joint moves slower than this, under a command that holds it, stays put:
+# the step only advances time (an idle worker's session then costs almost nothing).
+REST_SPEED = 1e-3  # rad/s or m/s
+HOLD_COMMAND = 1e-4  # arm action units (rad/s; OSC delta fraction)
 
 
 @dataclass(frozen=True)
@@ -52,6 +58,7 @@ class FastStepper:
         gripper_actuators: np.ndarray,
         gripper_closed: np.ndarray,
         control_dt: float,
+        fingers_open: Callable[[mujoco.MjData], bool],
     ) -> None:
         self._model = model
         self.arm = arm
@@ -63,6 +70,8 @@ class FastStepper:
         self._gripper_centre, self._gripper_half = (high + low) / 2, (high - low) / 2
         self._gripper_closed = gripper_closed
         self.substeps = max(1, round(control_dt / model.opt.timestep))
+        self._fingers_open = fingers_open
+        self.slept_steps = 0
         self.initial_joints = np.zeros(len(arm.layout.qpos))
 
     def start_episode(self, data: mujoco.MjData) -> None:
@@ -70,6 +79,10 @@ class FastStepper:
         self.initial_joints = data.qpos[self.arm.layout.qpos].copy()
 
     def step(self, data: mujoco.MjData, action: np.ndarray) -> None:
+        if self._stays_at_rest(data, action):
+            data.time += self.substeps * self._model.opt.timestep
+            self.slept_steps += 1
+            return
         arm_action, gripper = action[:-1], action[-1]
         if self.mode == "osc-pose":
             self._osc(data, arm_action)
@@ -85,6 +98,18 @@ class FastStepper:
         data.qacc_warmstart[:] = 0.0
         mujoco.mj_step(self._model, data, nstep=self.substeps)
         mujoco.mj_forward(self._model, data)  # observe (and linearize next time) at the new q
+
+    def _stays_at_rest(self, data: mujoco.MjData, action: np.ndarray) -> bool:
+        """Nothing moves and the command holds: decided from the state and action alone, so a
+        restored state sleeps or steps exactly as it did the first time."""
+        gripper = action[-1]
+        if abs(gripper) != 1.0 or np.abs(action[:-1]).max() > HOLD_COMMAND:
+            return False
+        if np.abs(data.qvel).max() > REST_SPEED:
+            return False
+        # Open fingers stay open under "open"; under "close" they stay only if already closed
+        # (on an object or on each other): open fingers told to close will move.
+        return self._fingers_open(data) == (gripper < 0)
 
     def _osc(self, data: mujoco.MjData, arm_action: np.ndarray) -> None:
         """robosuite's OSC_POSE delta goal, input in the base frame, 'achieved' update mode."""

@@ -37,6 +37,8 @@ logging.getLogger("robosuite").setLevel(logging.ERROR)
 
 COLLISION_GEOM_GROUP = 0  # robosuite draws visual meshes (group 1) and hides collision geoms
 
+FINGERS_OPEN_FRACTION = 0.05  # below this closed fraction the gripper counts as open
+
 SINGLE_ARM_ROBOTS = ("Sawyer", "Panda", "UR5e", "IIWA", "Kinova3", "Jaco")
 
 
@@ -135,9 +137,7 @@ class RobosuiteSimulation:
         return tasks.progress(self._env, self.success())
 
     def robot_state(self) -> RobotState:
-        finger_q = self._data.qpos[self._gripper_qpos_index]
-        closed = np.abs(finger_q - self._gripper_open_q) / self._gripper_span
-        gripper_closed = float(np.clip(np.mean(closed), 0.0, 1.0))
+        gripper_closed = self._closed_fraction(self._data)
         return RobotState(
             joint_positions=self._data.qpos[self._arm_qpos_index].copy(),
             joint_velocities=self._data.qvel[self._arm_qvel_index].copy(),
@@ -187,11 +187,12 @@ class RobosuiteSimulation:
         """
         pairs = model_fixes.static_parent_pairs(self._env.sim.model._model)
         robot = self._env.robots[0]
+        parked = [obj.root_body for obj in tasks.hidden_objects(self._env)]
 
         def fix(xml: str) -> str:
             self._xml = model_fixes.add_contact_excludes(xml, pairs)
             return fast_model.fast_physics_xml(
-                self._xml, robot.robot_model.root_body, robot.robot_joints
+                self._xml, robot.robot_model.root_body, robot.robot_joints, parked
             )
 
         self._env.set_xml_processor(fix)
@@ -202,6 +203,11 @@ class RobosuiteSimulation:
         low, high = self._env.action_spec
         mode = self.config.action_mode
         return ActionSpec(mode, int(low.shape[0]), np.array(low), np.array(high))
+
+    def _closed_fraction(self, data: mujoco.MjData) -> float:
+        finger_q = data.qpos[self._gripper_qpos_index]
+        closed = np.abs(finger_q - self._gripper_open_q) / self._gripper_span
+        return float(np.clip(np.mean(closed), 0.0, 1.0))
 
     def _make_stepper(self) -> FastStepper:
         robot, arm = self._robot, self._arm
@@ -227,6 +233,7 @@ class RobosuiteSimulation:
             np.array(robot._ref_joint_gripper_actuator_indexes[arm]),
             finger_direction(robot.gripper[arm]),
             self.control_dt,
+            fingers_open=lambda data: self._closed_fraction(data) < FINGERS_OPEN_FRACTION,
         )
 
     def _init_gripper_geometry(self) -> None:

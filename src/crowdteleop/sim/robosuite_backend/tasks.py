@@ -23,6 +23,12 @@ def active_objects(env: Any) -> list[Any]:
     return objects
 
 
+def hidden_objects(env: Any) -> list[Any]:
+    """Objects robosuite parks off the table in single-object variants (PickPlaceCan, ...)."""
+    active = active_objects(env)
+    return [obj for obj in _all_objects(env) if obj not in active]
+
+
 def _body_pose(env: Any, body_name: str) -> Pose:
     body_id = env.sim.model.body_name2id(body_name)
     return Pose.from_matrix(env.sim.data.body_xpos[body_id], env.sim.data.body_xmat[body_id])
