@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import robosuite
-from robosuite.controllers import load_composite_controller_config
 
+from crowdteleop.analysis.robosuite_replay import RobosuiteReplayer
 from crowdteleop.control import ControlConfig, Teleoperator
 from crowdteleop.control.scripted import ScriptedOperator, run_episode
-from crowdteleop.sim import SimConfig, get_task, make_simulation
+from crowdteleop.sim import SimConfig, make_simulation
 
 # Bounds on the per-step end-effector difference. Our OSC is robosuite's law linearized once
 # per 50 ms control step and run inside MuJoCo; robosuite re-evaluates it every 2 ms. At the
@@ -55,47 +54,15 @@ def scripted_osc_episode(task: str, seed: int):
     return xml, initial_joints, before, np.array(actions), np.array(hands)
 
 
-def robosuite_steps(task, xml, initial_joints, before, actions) -> np.ndarray:
-    """Plain robosuite, its default Sawyer controller (OSC_POSE), one step from each state."""
-    env = robosuite.make(
-        get_task(task).env_name,
-        robots="Sawyer",
-        controller_configs=load_composite_controller_config(robot="Sawyer"),
-        has_renderer=False,
-        has_offscreen_renderer=False,
-        use_camera_obs=False,
-        control_freq=20,
-        ignore_done=True,
-        hard_reset=False,
-    )
-    try:
-        env.reset_from_xml_string(xml)
-        robot = env.robots[0]
-        robot.composite_controller.part_controllers["right"].update_initial_joints(initial_joints)
-        gripper = robot.gripper["right"]
-        closed = np.sign(gripper.format_action(np.array([1.0])))
-        site = env.sim.model.site_name2id(gripper.important_sites["grip_site"])
-        hands = []
-        for state, action in zip(before, actions, strict=True):
-            env.sim.set_state_from_flattened(state)
-            env.sim.forward()
-            # robosuite ramps its finger command 0.2 per step; start it where ours is, so the
-            # comparison measures the arm.
-            gripper.current_action = closed * action[-1] - closed * gripper.speed * np.sign(
-                action[-1]
-            )
-            env.step(action)
-            hands.append(np.array(env.sim.data.site_xpos[site]))
-        return np.array(hands)
-    finally:
-        env.close()
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("task", ["lift", "pick-place-can", "nut-assembly-round"])
 def test_each_recorded_osc_action_moves_plain_robosuite_the_same_way(task):
     xml, initial_joints, before, actions, ours = scripted_osc_episode(task, seed=5)
-    theirs = robosuite_steps(task, xml, initial_joints, before, actions)
+    replayer = RobosuiteReplayer(task, xml)
+    try:
+        theirs = replayer.per_step(before, actions, initial_joints)
+    finally:
+        replayer.close()
     drift = np.linalg.norm(ours - theirs, axis=1)
     print(
         f"{task}: {len(actions)} steps, per-step drift median {np.median(drift) * 1e3:.2f} mm, "
