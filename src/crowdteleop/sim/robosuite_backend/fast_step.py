@@ -9,7 +9,6 @@ cannot carry; we command the action's value directly.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,10 +18,11 @@ from scipy.spatial.transform import Rotation
 
 from crowdteleop.sim.robosuite_backend.fast_control import FoldedArm
 
-# A scene whose every joint moves slower than this, under a command that holds it, stays put:
-# the step only advances time (an idle worker's session then costs almost nothing).
-REST_SPEED = 1e-3  # rad/s or m/s
-HOLD_COMMAND = 1e-4  # arm action units (rad/s; OSC delta fraction)
+# A scene whose every joint moves slower than REST_SPEED and, under the step's command,
+# accelerates less than REST_ACCEL, stays put for the step: it only advances time, and an idle
+# worker's session costs almost nothing. Over 50 ms such a scene would move < 0.3 mm.
+REST_SPEED = 5e-3  # rad/s or m/s (resting contacts creep at a few mm/s)
+REST_ACCEL = 1e-2  # rad/s^2 or m/s^2
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,6 @@ class FastStepper:
         gripper_actuators: np.ndarray,
         gripper_closed: np.ndarray,
         control_dt: float,
-        fingers_open: Callable[[mujoco.MjData], bool],
     ) -> None:
         self._model = model
         self.arm = arm
@@ -70,7 +69,6 @@ class FastStepper:
         self._gripper_centre, self._gripper_half = (high + low) / 2, (high - low) / 2
         self._gripper_closed = gripper_closed
         self.substeps = max(1, round(control_dt / model.opt.timestep))
-        self._fingers_open = fingers_open
         self.slept_steps = 0
         self.initial_joints = np.zeros(len(arm.layout.qpos))
 
@@ -79,10 +77,6 @@ class FastStepper:
         self.initial_joints = data.qpos[self.arm.layout.qpos].copy()
 
     def step(self, data: mujoco.MjData, action: np.ndarray) -> None:
-        if self._stays_at_rest(data, action):
-            data.time += self.substeps * self._model.opt.timestep
-            self.slept_steps += 1
-            return
         arm_action, gripper = action[:-1], action[-1]
         if self.mode == "osc-pose":
             self._osc(data, arm_action)
@@ -96,20 +90,21 @@ class FastStepper:
         # hidden state outside [time, qpos, qvel]. Starting each control step cold makes the
         # step a function of the recorded state and the action alone (exact restore / replay).
         data.qacc_warmstart[:] = 0.0
+        if self._stays_at_rest(data):
+            data.time += self.substeps * self._model.opt.timestep
+            self.slept_steps += 1
+            return
         mujoco.mj_step(self._model, data, nstep=self.substeps)
         mujoco.mj_forward(self._model, data)  # observe (and linearize next time) at the new q
 
-    def _stays_at_rest(self, data: mujoco.MjData, action: np.ndarray) -> bool:
-        """Nothing moves and the command holds: decided from the state and action alone, so a
-        restored state sleeps or steps exactly as it did the first time."""
-        gripper = action[-1]
-        if abs(gripper) != 1.0 or np.abs(action[:-1]).max() > HOLD_COMMAND:
-            return False
+    def _stays_at_rest(self, data: mujoco.MjData) -> bool:
+        """Nothing moves and, under the command just applied, nothing would start to: decided
+        from the state and action alone, so a restored state sleeps or steps as it did."""
         if np.abs(data.qvel).max() > REST_SPEED:
             return False
-        # Open fingers stay open under "open"; under "close" they stay only if already closed
-        # (on an object or on each other): open fingers told to close will move.
-        return self._fingers_open(data) == (gripper < 0)
+        mujoco.mj_forward(self._model, data)  # accelerations under this step's command
+        data.qacc_warmstart[:] = 0.0
+        return bool(np.abs(data.qacc).max() < REST_ACCEL)
 
     def _osc(self, data: mujoco.MjData, arm_action: np.ndarray) -> None:
         """robosuite's OSC_POSE delta goal, input in the base frame, 'achieved' update mode."""

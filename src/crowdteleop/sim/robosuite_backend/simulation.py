@@ -37,8 +37,6 @@ logging.getLogger("robosuite").setLevel(logging.ERROR)
 
 COLLISION_GEOM_GROUP = 0  # robosuite draws visual meshes (group 1) and hides collision geoms
 
-FINGERS_OPEN_FRACTION = 0.05  # below this closed fraction the gripper counts as open
-
 SINGLE_ARM_ROBOTS = ("Sawyer", "Panda", "UR5e", "IIWA", "Kinova3", "Jaco")
 
 
@@ -233,7 +231,6 @@ class RobosuiteSimulation:
             np.array(robot._ref_joint_gripper_actuator_indexes[arm]),
             finger_direction(robot.gripper[arm]),
             self.control_dt,
-            fingers_open=lambda data: self._closed_fraction(data) < FINGERS_OPEN_FRACTION,
         )
 
     def _init_gripper_geometry(self) -> None:
