@@ -10,13 +10,12 @@ import mink
 import mujoco
 import numpy as np
 
-from crowdteleop.sim.mjcf import with_arena
+from crowdteleop.sim.mjcf import kinematics_only
 from crowdteleop.sim.types import KinematicModel, Pose, RobotState
 
 IK_ITERATIONS = 4
 IK_STEP_S = 1.0  # each iteration takes a full Gauss-Newton step toward the target
 POSITION_TOLERANCE_M = 5e-4
-IK_ARENA = "1M"  # kinematics only: no contacts, no constraints
 
 
 class IKVelocityController:
@@ -24,7 +23,7 @@ class IKVelocityController:
 
     def __init__(self, kinematics: KinematicModel, kv: float) -> None:
         self.kv = kv
-        self._model = mujoco.MjModel.from_xml_string(with_arena(kinematics.mjcf_xml, IK_ARENA))
+        self._model = mujoco.MjModel.from_xml_string(kinematics_only(kinematics.mjcf_xml))
         joint_ids = [self._model.joint(name).id for name in kinematics.arm_joints]
         self._arm_qpos = self._model.jnt_qposadr[joint_ids]
         self._arm_dofs = self._model.jnt_dofadr[joint_ids]
