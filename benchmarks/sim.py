@@ -68,6 +68,11 @@ def _fmt(value: float | None, digits: int) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
+def _ratio(theirs: float | None, ours: float | None) -> str:
+    """How many times faster ours is (ratio of medians from the same run)."""
+    return "-" if not theirs or not ours else f"{theirs / ours:.1f}x"
+
+
 def results_table(results: list[TaskResult], options: BenchOptions) -> Table:
     """One row per task: medians of the repeats."""
     table = Table(
@@ -83,9 +88,11 @@ def results_table(results: list[TaskResult], options: BenchOptions) -> Table:
     table.add_column("step\nms", justify="right")
     table.add_column("teleop\nms", justify="right")
     table.add_column("rs step\nms", justify="right")
+    table.add_column("step\nspeed-up", justify="right")
     for size in options.sizes:
         table.add_column(f"render\n{size_key(size)}\nours ms", justify="right")
         table.add_column(f"render\n{size_key(size)}\nrs ms", justify="right")
+        table.add_column(f"render\n{size_key(size)}\nspeed-up", justify="right")
     table.add_column("get_state\nus", justify="right")
     table.add_column("set_state\nus", justify="right")
     if options.memory:
@@ -98,14 +105,13 @@ def results_table(results: list[TaskResult], options: BenchOptions) -> Table:
             _fmt(median(result.step_ms), 2),
             _fmt(median(result.teleop_ms), 2),
             _fmt(median(result.robosuite_step_ms), 2),
+            _ratio(median(result.robosuite_step_ms), median(result.step_ms)),
         ]
         for size in options.sizes:
             key = size_key(size)
             rs_render = result.robosuite_render_ms or {}
-            row += [
-                _fmt(median(result.render_ms.get(key)), 1),
-                _fmt(median(rs_render.get(key)), 1),
-            ]
+            ours, theirs = median(result.render_ms.get(key)), median(rs_render.get(key))
+            row += [_fmt(ours, 1), _fmt(theirs, 1), _ratio(theirs, ours)]
         row += [_fmt(median(result.get_state_us), 1), _fmt(median(result.set_state_us), 1)]
         if options.memory:
             memory = result.memory_mib or {}
