@@ -41,6 +41,10 @@ def choose_gl_backend() -> str:
         os.environ["MUJOCO_GL"] = backend
     if backend in ("egl", "osmesa"):
         os.environ.setdefault("PYOPENGL_PLATFORM", backend)
+    # Mesa's llvmpipe spreads each frame over worker threads: lower latency for one session,
+    # but more CPU in all (thread hand-offs) when every core serves sessions. Render in the
+    # calling thread unless told otherwise.
+    os.environ.setdefault("LP_NUM_THREADS", "0")
     return backend
 
 
