@@ -13,8 +13,8 @@ import numpy as np
 from crowdteleop.errors import UnknownRobotError
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms
+from crowdteleop.sim.fastrender import FastSceneRenderer
 from crowdteleop.sim.registry import TaskSpec, get_task
-from crowdteleop.sim.rendering import CameraRenderer
 from crowdteleop.sim.robosuite_backend import fast_model, model_fixes, tasks
 from crowdteleop.sim.robosuite_backend.controllers import (
     arm_controller_config,
@@ -73,7 +73,7 @@ class RobosuiteSimulation:
         self._data: mujoco.MjData = self._env.sim.data._data
         self._robot = self._env.robots[0]
         self._arm = self._robot.arms[0]
-        self._renderer = CameraRenderer(self._model, hidden_geom_groups=(COLLISION_GEOM_GROUP,))
+        self._renderer = FastSceneRenderer(self._model, self._xml, (COLLISION_GEOM_GROUP,))
         self.cameras = self._renderer.cameras
         self.action_spec = self._make_action_spec()
         self._arm_qpos_index = np.array(self._robot._ref_joint_pos_indexes)
