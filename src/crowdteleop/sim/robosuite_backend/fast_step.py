@@ -71,12 +71,19 @@ class FastStepper:
         self.substeps = max(1, round(control_dt / model.opt.timestep))
         self.slept_steps = 0
         self.initial_joints = np.zeros(len(arm.layout.qpos))
+        self._asleep_at: tuple[bytes, bytes, bytes] | None = None
 
     def start_episode(self, data: mujoco.MjData) -> None:
         """robosuite's OSC pulls the arm's null space toward the episode's first posture."""
         self.initial_joints = data.qpos[self.arm.layout.qpos].copy()
 
     def step(self, data: mujoco.MjData, action: np.ndarray) -> None:
+        # Still asleep: the same positions, velocities and command as the step that slept last
+        # decide the same way again, without recomputing anything.
+        key = (data.qpos.tobytes(), data.qvel.tobytes(), action.tobytes())
+        if key == self._asleep_at:
+            self._sleep(data)
+            return
         arm_action, gripper = action[:-1], action[-1]
         if self.mode == "osc-pose":
             self._osc(data, arm_action)
@@ -91,11 +98,16 @@ class FastStepper:
         # step a function of the recorded state and the action alone (exact restore / replay).
         data.qacc_warmstart[:] = 0.0
         if self._stays_at_rest(data):
-            data.time += self.substeps * self._model.opt.timestep
-            self.slept_steps += 1
+            self._asleep_at = key
+            self._sleep(data)
             return
+        self._asleep_at = None
         mujoco.mj_step(self._model, data, nstep=self.substeps)
         mujoco.mj_forward(self._model, data)  # observe (and linearize next time) at the new q
+
+    def _sleep(self, data: mujoco.MjData) -> None:
+        data.time += self.substeps * self._model.opt.timestep
+        self.slept_steps += 1
 
     def _stays_at_rest(self, data: mujoco.MjData) -> bool:
         """Nothing moves and, under the command just applied, nothing would start to: decided
