@@ -13,7 +13,7 @@ import numpy as np
 from crowdteleop.sim.mjcf import kinematics_only
 from crowdteleop.sim.types import KinematicModel, Pose, RobotState
 
-IK_ITERATIONS = 4
+IK_ITERATIONS = 1  # one Gauss-Newton step per control step; the next step refines it
 IK_STEP_S = 1.0  # each iteration takes a full Gauss-Newton step toward the target
 POSITION_TOLERANCE_M = 5e-4
 
