@@ -101,3 +101,17 @@ def test_a_broken_gl_backend_fails_with_the_package_to_install():
     run = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
     assert run.returncode != 0
     assert "RenderBackendError" in run.stderr and "libglfw3" in run.stderr
+
+
+def test_importing_mujoco_before_crowdteleop_is_explained():
+    """MuJoCo fixes its GL backend at import; the error says which import to move."""
+    script = (
+        "import mujoco\n"
+        "from crowdteleop.sim import make_simulation, SimConfig\n"
+        "make_simulation(SimConfig(task='mujoco-lift')).render('frontview', 64, 48)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    env.pop("DISPLAY", None)
+    run = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
+    assert run.returncode != 0
+    assert "Import crowdteleop before mujoco" in run.stderr

@@ -48,9 +48,26 @@ def choose_gl_backend() -> str:
     return backend
 
 
+def _backend_mujoco_loaded() -> str | None:
+    """The backend mujoco fixed when it was imported (it reads MUJOCO_GL only then)."""
+    try:
+        from mujoco import gl_context
+    except ImportError:
+        return None
+    return gl_context.GLContext.__module__.rsplit(".", 1)[-1]
+
+
 def render_backend_error(cause: BaseException) -> RenderBackendError:
-    """The error a user sees when no GL context can be made, naming the Debian package."""
+    """The error a user sees when no GL context can be made: the package to install, or the
+    import order to fix when mujoco was loaded before crowdteleop chose its backend."""
     backend = os.environ.get("MUJOCO_GL", "?")
+    loaded = _backend_mujoco_loaded()
+    if loaded is not None and loaded != backend:
+        return RenderBackendError(
+            f"mujoco was imported with the {loaded!r} GL backend before crowdteleop chose "
+            f"MUJOCO_GL={backend} ({cause}). Import crowdteleop before mujoco or robosuite, "
+            "or set MUJOCO_GL in the environment before starting Python."
+        )
     package = _PACKAGE_FOR_BACKEND.get(backend, "libosmesa6")
     return RenderBackendError(
         f"MuJoCo cannot render offscreen with MUJOCO_GL={backend} ({cause}). "
