@@ -179,7 +179,12 @@ def run_child(task: str, mode: str, opts: dict[str, Any]) -> SessionResult:
     counts = {name: getattr(session, name) for name in ("encoded", "episodes", "successes")}
     session.sim.close()
     return SessionResult(
-        task, mode, **loop, user_cpu_s=session.user_cpu_s, **counts, rss_mib=rss_mib,
+        task,
+        mode,
+        **loop,
+        user_cpu_s=session.user_cpu_s,
+        **counts,
+        rss_mib=rss_mib,
         phase_ms=phase_ms,
     )
 

@@ -15,10 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from crowdteleop.analysis.robosuite_replay import RobosuiteReplayer
-from crowdteleop.control import ControlConfig, Teleoperator
-from crowdteleop.control.scripted import ScriptedOperator, run_episode
-from crowdteleop.sim import SimConfig, make_simulation
+from crowdteleop.analysis.robosuite_replay import RobosuiteReplayer, record_scripted_osc_episode
 
 # Bounds on the per-step end-effector difference. Our OSC is robosuite's law linearized once
 # per 50 ms control step and run inside MuJoCo; robosuite re-evaluates it every 2 ms. At the
@@ -29,41 +26,18 @@ MEDIAN_STEP_DRIFT_M = 0.001
 MAX_STEP_DRIFT_M = 0.003
 
 
-def scripted_osc_episode(task: str, seed: int):
-    """Our fast path: (xml, initial joints, states before each step, actions, hands after)."""
-    control = ControlConfig(controller="osc")
-    sim = make_simulation(SimConfig(task=task, action_mode="osc-pose"))
-    teleop = Teleoperator(sim, control)
-    before, actions, hands = [], [], []
-    step_once = teleop.step
-
-    def recorded_step(command):
-        before.append(sim.get_state())
-        step = step_once(command)
-        actions.append(step.action)
-        hands.append(sim.robot_state().end_effector.position)
-        return step
-
-    teleop.step = recorded_step
-    operator = ScriptedOperator(sim, control.mapping, seed=seed)
-    result = run_episode(teleop, operator, seed, time_limit_s=30.0)
-    initial_joints = sim._stepper.initial_joints.copy()  # the episode's nullspace posture
-    xml = sim.mjcf_xml()
-    sim.close()
-    assert result.success
-    return xml, initial_joints, before, np.array(actions), np.array(hands)
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("task", ["lift", "pick-place-can", "nut-assembly-round"])
 def test_each_recorded_osc_action_moves_plain_robosuite_the_same_way(task):
-    xml, initial_joints, before, actions, ours = scripted_osc_episode(task, seed=5)
-    replayer = RobosuiteReplayer(task, xml)
+    episode = record_scripted_osc_episode(task, seed=5)
+    assert episode.success
+    actions = episode.actions
+    replayer = RobosuiteReplayer(task, episode.mjcf_xml)
     try:
-        theirs = replayer.per_step(before, actions, initial_joints)
+        theirs = replayer.per_step(episode.states_before, actions, episode.nullspace_posture)
     finally:
         replayer.close()
-    drift = np.linalg.norm(ours - theirs, axis=1)
+    drift = np.linalg.norm(episode.hands_after - theirs, axis=1)
     print(
         f"{task}: {len(actions)} steps, per-step drift median {np.median(drift) * 1e3:.2f} mm, "
         f"p95 {np.percentile(drift, 95) * 1e3:.2f} mm, max {drift.max() * 1e3:.2f} mm"

@@ -8,13 +8,64 @@ demonstration: `reset_from_xml_string(model_file)`, then states.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import robosuite
 from robosuite.controllers import load_composite_controller_config
 
+from crowdteleop.control import ControlConfig, DeviceCommand, Teleoperator
+from crowdteleop.control.scripted import ScriptedOperator, run_episode
+from crowdteleop.control.teleoperator import TeleopStep
+from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.sim.registry import get_task
+
+
+@dataclass(frozen=True)
+class RecordedEpisode:
+    """What replaying an OSC episode in robosuite needs, and where our hand went."""
+
+    mjcf_xml: str
+    nullspace_posture: np.ndarray
+    states_before: list[np.ndarray]
+    actions: np.ndarray
+    hands_after: np.ndarray
+    success: bool
+
+
+def record_scripted_osc_episode(
+    task: str, seed: int, time_limit_s: float = 30.0
+) -> RecordedEpisode:
+    """A scripted operator performs `task` through our fast path with the `osc` controller."""
+    control = ControlConfig(controller="osc")
+    sim = make_simulation(SimConfig(task=task, action_mode="osc-pose"))
+    teleop = Teleoperator(sim, control)
+    before: list[np.ndarray] = []
+    actions, hands = [], []
+    step_once = teleop.step
+
+    def recorded_step(command: DeviceCommand) -> TeleopStep:
+        before.append(sim.get_state())
+        step = step_once(command)
+        actions.append(step.action)
+        hands.append(sim.robot_state().end_effector.position)
+        return step
+
+    teleop.step = recorded_step  # type: ignore[method-assign]
+    try:
+        operator = ScriptedOperator(sim, control.mapping, seed=seed)
+        result = run_episode(teleop, operator, seed, time_limit_s=time_limit_s)
+        return RecordedEpisode(
+            sim.mjcf_xml(),
+            sim.nullspace_posture,
+            before,
+            np.array(actions),
+            np.array(hands),
+            result.success,
+        )
+    finally:
+        sim.close()
 
 
 class RobosuiteReplayer:

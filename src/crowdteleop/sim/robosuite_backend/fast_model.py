@@ -89,7 +89,14 @@ def fast_physics_xml(
             for joint in arm_joints:
                 ET.SubElement(fixed, "joint", joint=joint, coef="0")
             ET.SubElement(
-                actuator, "general", name=name, tendon=name, gaintype="fixed",
-                biastype="affine", gainprm="0", biasprm="0 0 0", ctrllimited="false",
+                actuator,
+                "general",
+                name=name,
+                tendon=name,
+                gaintype="fixed",
+                biastype="affine",
+                gainprm="0",
+                biasprm="0 0 0",
+                ctrllimited="false",
             )
     return with_arena(ET.tostring(root, encoding="unicode"), ARENA)

@@ -88,6 +88,12 @@ class RobosuiteSimulation:
 
     # --- lifecycle -------------------------------------------------------------------------
     @property
+    def nullspace_posture(self) -> np.ndarray:
+        """The joint posture robosuite's OSC pulls the null space toward: the episode's first.
+        Replaying an episode in plain robosuite needs it (it is not in the state)."""
+        return self._stepper.initial_joints.copy()
+
+    @property
     def control_dt(self) -> float:
         return float(self._env.control_timestep)
 
