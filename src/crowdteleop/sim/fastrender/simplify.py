@@ -40,7 +40,7 @@ SUPPORTED_SUFFIXES = (".obj", ".stl")
 class SimplifyParams:
     """What decides a simplified mesh; part of every cache key."""
 
-    tolerance_m: float = 0.004  # max two-sided Hausdorff distance, in metres after mesh scale
+    tolerance_m: float = 0.008  # max two-sided Hausdorff distance, in metres after mesh scale
     ratios: tuple[float, ...] = (  # fractions of the faces kept, searched smallest first
         0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.1, 0.12, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.7,
     )  # fmt: skip
