@@ -29,7 +29,7 @@ from _measure import MIB, machine_facts, median
 from crowdteleop.control import ControlConfig, DeviceCommand, Teleoperator
 from crowdteleop.control.scripted import ScriptedOperator
 from crowdteleop.control.scripted.episode import SUCCESS_HOLD_STEPS
-from crowdteleop.sim import SimConfig, make_simulation
+from crowdteleop.sim import SimConfig, get_task, make_simulation
 from sim import _console, _parse_tasks, facts_table
 
 app = typer.Typer(add_completion=False)
@@ -93,7 +93,7 @@ class Session:
         self.busy, self.camera = busy, opts["camera"]
         self.size = (opts["width"], opts["height"])
         self.codec = make_encoder(*self.size, round(1.0 / self.sim.control_dt))
-        self.max_steps = round(self.teleop.sim_task_time_limit() / self.sim.control_dt)
+        self.max_steps = round(get_task(task).time_limit_s / self.sim.control_dt)
         self.previous: np.ndarray | None = None
         self.seed = self.pts = 0
         self.clear()

@@ -14,7 +14,6 @@ from crowdteleop.control.mapping import ClutchMapper
 from crowdteleop.control.osc import OSCController
 from crowdteleop.errors import ConfigError
 from crowdteleop.sim.interface import Simulation
-from crowdteleop.sim.registry import get_task
 from crowdteleop.sim.types import Pose, RobotState, StepResult
 
 
@@ -57,10 +56,6 @@ class Teleoperator:
         self.mapper = ClutchMapper(config.mapping)
         self.controller = make_controller(config, sim)
         self._hold: Pose | None = None
-
-    def sim_task_time_limit(self) -> float:
-        """The task's time limit in seconds of simulated time."""
-        return get_task(self.sim.config.task).time_limit_s
 
     def reset(self, seed: int | None = None) -> None:
         self.sim.reset(seed)

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 from crowdteleop.control.scripted.operator import ScriptedOperator
 from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
+from crowdteleop.sim.registry import get_task
 
 # robosuite's demonstration collector ends an episode after this many successful steps.
 SUCCESS_HOLD_STEPS = 10
@@ -32,7 +33,9 @@ def run_episode(
     teleop.reset(seed)
     operator.reset()
     dt = teleop.sim.control_dt
-    limit = time_limit_s if time_limit_s is not None else teleop.sim_task_time_limit()
+    limit = (
+        time_limit_s if time_limit_s is not None else get_task(teleop.sim.config.task).time_limit_s
+    )
     max_steps = round(limit / dt)
     held = 0
     for step_index in range(1, max_steps + 1):

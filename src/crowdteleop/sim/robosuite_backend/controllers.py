@@ -6,7 +6,6 @@ depends only on the MuJoCo state and the action.
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
 from crowdteleop.sim.config import SimConfig
@@ -68,6 +67,4 @@ def arm_controller_config(config: SimConfig, control_dt: float) -> dict[str, Any
 
 def composite_controller_config(config: SimConfig, control_dt: float) -> dict[str, Any]:
     """robosuite's BASIC composite controller with our arm part on the right arm."""
-    return copy.deepcopy(
-        {"type": "BASIC", "body_parts": {"right": arm_controller_config(config, control_dt)}}
-    )
+    return {"type": "BASIC", "body_parts": {"right": arm_controller_config(config, control_dt)}}

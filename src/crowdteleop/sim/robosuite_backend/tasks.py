@@ -13,11 +13,15 @@ import numpy as np
 from crowdteleop.sim.types import Pose, TaskProgress
 
 
-def active_objects(env: Any) -> list[Any]:
-    """The robosuite objects the episode is about (single-object variants hide the rest)."""
+def _all_objects(env: Any) -> list[Any]:
     if hasattr(env, "cube"):
         return [env.cube]
-    objects = list(getattr(env, "nuts", None) or getattr(env, "objects", []))
+    return list(getattr(env, "nuts", None) or getattr(env, "objects", []))
+
+
+def active_objects(env: Any) -> list[Any]:
+    """The robosuite objects the episode is about (single-object variants hide the rest)."""
+    objects = _all_objects(env)
     if getattr(env, "single_object_mode", 0) in (1, 2):
         objects = [obj for obj in objects if obj.name == env.obj_to_use]
     return objects
@@ -43,8 +47,9 @@ def object_poses(env: Any) -> dict[str, Pose]:
     """Object poses, plus "<name>/handle" grasp frames and "<name>/target" goal positions."""
     poses: dict[str, Pose] = {}
     identity = np.array([0.0, 0.0, 0.0, 1.0])
+    active = active_objects(env)
     for index, obj in enumerate(_all_objects(env)):
-        if obj not in active_objects(env):
+        if obj not in active:
             continue
         poses[obj.name] = _body_pose(env, obj.root_body)
         if "handle" in obj.important_sites:
@@ -57,12 +62,6 @@ def object_poses(env: Any) -> dict[str, Pose]:
     if hasattr(env, "table_offset"):
         poses["table"] = Pose(np.array(env.table_offset), identity)
     return poses
-
-
-def _all_objects(env: Any) -> list[Any]:
-    if hasattr(env, "cube"):
-        return [env.cube]
-    return list(getattr(env, "nuts", None) or getattr(env, "objects", []))
 
 
 def _grasped(env: Any, obj: Any) -> bool:
