@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 from typing import Annotated
 
@@ -98,3 +99,97 @@ def _film_demo(
             return result
     finally:
         sim.close()
+
+
+@app.command("teleop-server")
+def teleop_server(
+    config: Annotated[
+        Path | None, typer.Option(help="TeleopConfig as JSON (other options override it)")
+    ] = None,
+    task: Annotated[str | None, typer.Option(help="task name")] = None,
+    robot: Annotated[str | None, typer.Option(help="robosuite arm")] = None,
+    controller: Annotated[ControllerName | None, typer.Option(help="ik-velocity or osc")] = None,
+    codec: Annotated[str | None, typer.Option(help="vp8 or h264")] = None,
+    token: Annotated[str | None, typer.Option(help="workers' session token")] = None,
+    admin_token: Annotated[str | None, typer.Option(help="enables the admin channel")] = None,
+    record_dir: Annotated[Path | None, typer.Option(help="where episodes are written")] = None,
+    host: Annotated[str, typer.Option(help="address to bind")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="port; 0 picks a free one")] = 8001,
+) -> None:
+    """Run one teleop session (one simulated robot, one worker) until interrupted."""
+    import asyncio
+    import logging
+
+    from crowdteleop.teleop.config import TeleopConfig
+    from crowdteleop.teleop.server import serve
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s %(message)s")
+    try:
+        fields = {} if config is None else _read_json(config)
+        overrides = {"token": token, "admin_token": admin_token}
+        fields.update({key: value for key, value in overrides.items() if value is not None})
+        if controller is not None:
+            fields["control"] = {**fields.get("control", {}), "controller": controller}
+        chosen = fields.get("control", {}).get("controller", "ik-velocity")
+        sim = {**fields.get("sim", {}), "action_mode": _action_mode(chosen)}
+        sim.update({key: v for key, v in {"task": task, "robot": robot}.items() if v is not None})
+        fields["sim"] = sim
+        if codec is not None:
+            fields["video"] = {**fields.get("video", {}), "codec": codec}
+        if record_dir is not None:
+            fields["recording"] = {**fields.get("recording", {}), "directory": str(record_dir)}
+        settings = TeleopConfig.model_validate(fields)
+    except (CrowdteleopError, ValidationError, OSError, ValueError) as exc:
+        console.print(f"[red]error:[/red] {_explain(exc)}")
+        raise typer.Exit(2) from exc
+    with contextlib.suppress(KeyboardInterrupt):
+        asyncio.run(serve(settings, host, port))
+
+
+@app.command()
+def bot(
+    url: Annotated[str, typer.Option(help="teleop server URL")] = "http://127.0.0.1:8001",
+    token: Annotated[str, typer.Option(help="session token")] = "dev-token",
+    admin_token: Annotated[str, typer.Option(help="admin token (privileged state)")] = "",
+    episodes: Annotated[int, typer.Option(help="episodes to drive")] = 1,
+    timeout: Annotated[float, typer.Option(help="give up after this many seconds")] = 300.0,
+) -> None:
+    """Drive a running teleop session with a scripted operator, through the network."""
+    from crowdteleop.client.bot import main as run_bot
+
+    if not admin_token:
+        console.print("[red]error:[/red] the bot needs --admin-token (it reads object poses)")
+        raise typer.Exit(2)
+    try:
+        result = run_bot(url, token, admin_token, episodes, timeout)
+    except (ConnectionError, TimeoutError, OSError) as exc:
+        console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(1) from exc
+    console.print(
+        f"{result.successes}/{len(result.episodes)} episodes succeeded "
+        f"({', '.join(result.episodes)}) in {result.seconds:.1f} s"
+    )
+
+
+@app.command("protocol-schema")
+def protocol_schema() -> None:
+    """Print the JSON Schema of the teleop message protocol."""
+    import json
+
+    from crowdteleop.teleop.protocol import json_schema
+
+    print(json.dumps(json_schema(), indent=2))
+
+
+def _read_json(path: Path) -> dict:
+    import json
+
+    return json.loads(path.read_text())
+
+
+def _action_mode(controller: str) -> str:
+    from crowdteleop.control.config import ACTION_MODE_FOR_CONTROLLER
+
+    if controller not in ACTION_MODE_FOR_CONTROLLER:
+        raise ValueError(f"unknown controller {controller!r}")
+    return ACTION_MODE_FOR_CONTROLLER[controller]

@@ -1,0 +1,1 @@
+"""A Python client of the teleop server (aiortc), and the scripted bot built on it."""

@@ -1,0 +1,142 @@
+"""`crowdteleop bot`: a scripted operator driving a session through the network.
+
+The bot is a client like a worker's browser: it sees what the server sends and commands the
+arm with device poses. What a person gets from their eyes (where the cube is) the bot gets
+from the admin-only channel, so it needs the admin token; workers never receive it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from crowdteleop.client.connection import TeleopClient
+from crowdteleop.control.config import MappingConfig
+from crowdteleop.control.scripted.operator import OperatorStyle, ScriptedOperator
+from crowdteleop.sim.config import SimConfig
+from crowdteleop.sim.types import Pose, RobotState
+from crowdteleop.teleop.protocol import PrivilegedState
+
+
+def _pose(values: tuple[float, ...]) -> Pose:
+    return Pose(np.array(values[:3]), np.array(values[3:7]))
+
+
+class RemoteWorld:
+    """The part of a `Simulation` a scripted operator reads, fed by privileged messages."""
+
+    def __init__(self, task: str, control_hz: float) -> None:
+        self.config = SimConfig(task=task, control_hz=control_hz)
+        self.control_dt = 1.0 / control_hz
+        self.latest: PrivilegedState | None = None
+
+    def robot_state(self) -> RobotState:
+        assert self.latest is not None, "no privileged state received yet"
+        zeros = np.zeros(0)
+        return RobotState(
+            joint_positions=zeros,
+            joint_velocities=zeros,
+            end_effector=_pose(self.latest.end_effector),
+            base=Pose(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
+            gripper_closed_fraction=0.0,
+        )
+
+    def object_poses(self) -> dict[str, Pose]:
+        assert self.latest is not None, "no privileged state received yet"
+        return {name: _pose(values) for name, values in self.latest.objects.items()}
+
+
+@dataclass
+class BotResult:
+    episodes: list[str] = field(default_factory=list)  # outcomes, in order
+    seconds: float = 0.0
+
+    @property
+    def successes(self) -> int:
+        return self.episodes.count("success")
+
+
+class Bot:
+    """Sends one command per server step, in step with the privileged stream."""
+
+    def __init__(
+        self,
+        client: TeleopClient,
+        style: OperatorStyle | None = None,
+        mapping: MappingConfig | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.client = client
+        self.style = style
+        self.mapping = mapping
+        self.seed = seed
+        self.operator: ScriptedOperator | None = None
+        self.world: RemoteWorld | None = None
+        self._scene: int | None = None
+        self.episodes_wanted: int | None = None
+        client.on_privileged = self._on_privileged
+
+    def _on_privileged(self, message: PrivilegedState) -> None:
+        hello = self.client.state.hello
+        if hello is None:
+            return
+        if self.world is None:
+            self.world = RemoteWorld(hello.task, hello.fps)
+        self.world.latest = message
+        if self.operator is None:
+            self.operator = ScriptedOperator(
+                self.world,  # type: ignore[arg-type]  # reads only what RemoteWorld has
+                mapping=self.mapping,
+                style=self.style,
+                seed=self.seed,
+            )
+        if (
+            self.episodes_wanted is not None
+            and len(self.client.state.episodes) >= self.episodes_wanted
+        ):
+            return  # done: leave the arm alone
+        if message.scene != self._scene:  # the server reset the scene: start over
+            self._scene = message.scene
+            self.operator.reset()
+        if self.operator.finished:
+            return  # plan done without success: wait for the reset we asked for
+        command = self.operator.command()
+        self.client.send_pose(
+            command.position, command.quaternion, command.engaged, command.gripper_closed
+        )
+        if self.operator.finished:
+            self.client.request("reset")
+
+    async def run(self, episodes: int, timeout_s: float) -> BotResult:
+        """Drive until `episodes` episodes ended (any outcome) or `timeout_s` passed."""
+        started = time.monotonic()
+        self.episodes_wanted = episodes
+        await self.client.wait_for(lambda state: len(state.episodes) >= episodes, timeout=timeout_s)
+        return BotResult(
+            [episode.outcome for episode in self.client.state.episodes[:episodes]],
+            time.monotonic() - started,
+        )
+
+
+async def run_bot(
+    url: str,
+    token: str,
+    admin_token: str,
+    episodes: int = 1,
+    timeout_s: float = 300.0,
+    seed: int = 0,
+) -> BotResult:
+    client = TeleopClient(url, token, role="admin", admin_token=admin_token, device="bot")
+    bot = Bot(client, seed=seed)
+    await client.connect()
+    try:
+        return await bot.run(episodes, timeout_s)
+    finally:
+        await client.close()
+
+
+def main(url: str, token: str, admin_token: str, episodes: int, timeout_s: float) -> BotResult:
+    return asyncio.run(run_bot(url, token, admin_token, episodes, timeout_s))

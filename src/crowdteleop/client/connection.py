@@ -1,0 +1,268 @@
+"""A Python client of a teleop server, speaking WebRTC exactly as a browser or phone does."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import aiohttp
+import numpy as np
+from aiortc import RTCConfiguration, RTCIceServer, RTCPeerConnection, RTCSessionDescription
+from aiortc.mediastreams import MediaStreamError
+
+from crowdteleop.client.latency import FrameMatcher, LatencyTracker
+from crowdteleop.teleop.protocol import (
+    PROTOCOL_VERSION,
+    DeviceKind,
+    EpisodeEnded,
+    ErrorEvent,
+    FrameTag,
+    HapticEvent,
+    Hello,
+    PeerRole,
+    PrivilegedState,
+    ServerPing,
+    TaskStatus,
+    Telemetry,
+    parse_server_message,
+)
+
+log = logging.getLogger(__name__)
+
+
+class OfferRefusedError(ConnectionError):
+    """The server answered the offer with an error (wrong token, full, ...)."""
+
+    def __init__(self, status: int, code: str, message: str) -> None:
+        super().__init__(f"{status} {code}: {message}")
+        self.status, self.code = status, code
+
+
+@dataclass
+class ClientState:
+    """Everything the server told this client, newest last."""
+
+    hello: Hello | None = None
+    status: TaskStatus | None = None
+    telemetry: Telemetry | None = None
+    privileged: PrivilegedState | None = None
+    episodes: list[EpisodeEnded] = field(default_factory=list)
+    haptics: list[HapticEvent] = field(default_factory=list)
+    errors: list[ErrorEvent] = field(default_factory=list)
+    frames_received: int = 0
+    latest_frame: np.ndarray | None = None
+    frame_times: deque[float] = field(default_factory=lambda: deque(maxlen=100))
+
+    def fps(self) -> float:
+        if len(self.frame_times) < 2:
+            return 0.0
+        span = self.frame_times[-1] - self.frame_times[0]
+        return (len(self.frame_times) - 1) / span if span > 0 else 0.0
+
+
+class TeleopClient:
+    """Connect with `await connect()`; send commands; read `state`; `await close()`."""
+
+    def __init__(
+        self,
+        base_url: str,
+        token: str,
+        role: PeerRole = "worker",
+        device: DeviceKind = "bot",
+        admin_token: str | None = None,
+        video: bool = True,
+        ice_servers: Sequence[str] = (),
+        on_privileged: Callable[[PrivilegedState], None] | None = None,
+    ) -> None:
+        self.base_url = base_url.rstrip("/")
+        self.token, self.role, self.device = token, role, device
+        self.admin_token = admin_token
+        self.video = video and role != "phone"
+        self.state = ClientState()
+        self.matcher = FrameMatcher()
+        self.latency = LatencyTracker()
+        self.on_privileged = on_privileged
+        ice = [RTCIceServer(urls=url) for url in ice_servers]
+        self.pc = RTCPeerConnection(RTCConfiguration(iceServers=ice))
+        self._channels: dict[str, Any] = {}
+        self._seq = 0
+        self._reported = 0
+        self._tasks: list[asyncio.Task[Any]] = []
+        self._changed = asyncio.Event()
+        self.peer_id = ""
+
+    # --- connecting -----------------------------------------------------------------------
+
+    async def connect(self, timeout: float = 30.0) -> None:
+        self._channels["control"] = self.pc.createDataChannel(
+            "control", ordered=False, maxRetransmits=0
+        )
+        self._channels["events"] = self.pc.createDataChannel("events")
+        self._channels["events"].on("message", self._on_message)
+        if self.role == "admin":
+            self._channels["admin"] = self.pc.createDataChannel("admin")
+            self._channels["admin"].on("message", self._on_message)
+        if self.video:
+            self.pc.addTransceiver("video", direction="recvonly")
+            self.pc.on("track", self._on_track)
+        await self.pc.setLocalDescription(await self.pc.createOffer())
+        body = {
+            "sdp": self.pc.localDescription.sdp,
+            "type": self.pc.localDescription.type,
+            "token": self.token,
+            "role": self.role,
+        }
+        if self.admin_token:
+            body["admin_token"] = self.admin_token
+        async with (
+            aiohttp.ClientSession() as http,
+            http.post(f"{self.base_url}/offer", json=body) as response,
+        ):
+            answer = await response.json()
+            if response.status != 200:
+                raise OfferRefusedError(
+                    response.status, answer.get("error", "?"), answer.get("message", "")
+                )
+        self.peer_id = answer["peer_id"]
+        await self.pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
+        await self.wait_for(lambda s: s.hello is not None, timeout)
+
+    async def close(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError, MediaStreamError):
+                await task
+        await self.pc.close()
+
+    async def wait_for(self, predicate: Callable[[ClientState], bool], timeout: float) -> None:
+        """Wait until `predicate(state)` holds; TimeoutError names what was awaited."""
+        deadline = time.monotonic() + timeout
+        while not predicate(self.state):
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise TimeoutError(f"timed out after {timeout} s waiting for the server")
+            self._changed.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._changed.wait(), min(remaining, 0.5))
+
+    # --- receiving ------------------------------------------------------------------------
+
+    def _on_track(self, track: Any) -> None:
+        self._tasks.append(asyncio.create_task(self._read_video(track)))
+
+    async def _read_video(self, track: Any) -> None:
+        while True:
+            try:
+                frame = await track.recv()
+            except MediaStreamError:
+                return
+            now = time.monotonic()
+            self.state.frames_received += 1
+            self.state.frame_times.append(now)
+            if frame.width > 2:
+                self.state.latest_frame = frame.to_ndarray(format="rgb24")
+            seq = self.matcher.command_seq_of(frame.pts)
+            if seq is not None:
+                self.latency.frame_shown(seq, now)
+            self._changed.set()
+
+    def _on_message(self, raw: str | bytes) -> None:
+        message = parse_server_message(raw)
+        state = self.state
+        if isinstance(message, FrameTag):
+            self.matcher.add_tag(message.pts, message.command_seq)
+        elif isinstance(message, TaskStatus):
+            state.status = message
+        elif isinstance(message, PrivilegedState):
+            state.privileged = message
+            if self.on_privileged is not None:
+                self.on_privileged(message)
+        elif isinstance(message, HapticEvent):
+            state.haptics.append(message)
+        elif isinstance(message, EpisodeEnded):
+            state.episodes.append(message)
+        elif isinstance(message, ErrorEvent):
+            state.errors.append(message)
+        elif isinstance(message, Telemetry):
+            state.telemetry = message
+        elif isinstance(message, Hello):
+            state.hello = message
+        elif isinstance(message, ServerPing):
+            self.send_raw("events", {"type": "pong", "id": message.id, "t": message.t})
+        self._changed.set()
+
+    # --- sending --------------------------------------------------------------------------
+
+    def _next_seq(self) -> int:
+        self._seq += 1
+        return self._seq
+
+    def _now_ms(self) -> float:
+        return time.time() * 1e3
+
+    def send_raw(self, channel: str, message: dict[str, Any] | str | bytes) -> bool:
+        """Send a message as given (a dict gets ``v``): also how tests send bad input."""
+        target = self._channels.get(channel)
+        if target is None or target.readyState != "open":
+            return False
+        if isinstance(message, dict):
+            message = json.dumps({"v": PROTOCOL_VERSION, **message})
+        target.send(message)
+        return True
+
+    def send_pose(
+        self,
+        position: Sequence[float],
+        quaternion: Sequence[float],
+        engaged: bool,
+        gripper: bool,
+    ) -> int:
+        seq = self._next_seq()
+        self.latency.command_sent(seq, time.monotonic())
+        self.send_raw(
+            "control",
+            {
+                "type": "pose",
+                "seq": seq,
+                "t": self._now_ms(),
+                "device": self.device,
+                "position": [float(x) for x in position],
+                "quaternion": [float(x) for x in quaternion],
+                "engaged": engaged,
+                "gripper": gripper,
+            },
+        )
+        return seq
+
+    def send_clutch(self, engaged: bool) -> int:
+        seq = self._next_seq()
+        event = {"type": "clutch", "engaged": engaged}
+        self.send_raw("events", {**event, "seq": seq, "t": self._now_ms(), "device": self.device})
+        return seq
+
+    def send_gripper(self, closed: bool) -> int:
+        seq = self._next_seq()
+        event = {"type": "gripper", "closed": closed}
+        self.send_raw("events", {**event, "seq": seq, "t": self._now_ms(), "device": self.device})
+        return seq
+
+    def request(self, kind: str) -> None:
+        """``reset``, ``start`` or ``stop``."""
+        self.send_raw("events", {"type": kind})
+
+    def take_control(self) -> None:
+        self.send_raw("events", {"type": "take_control", "device": self.device})
+
+    def report_latency(self) -> None:
+        """Send the latencies measured since the last report (at most 100) for telemetry."""
+        samples = self.latency.samples_ms[self._reported : self._reported + 100]
+        self._reported += len(samples)
+        self.send_raw("events", {"type": "latency", "samples_ms": samples, "fps": self.state.fps()})

@@ -1,0 +1,1 @@
+"""The teleop server: one real-time simulated robot per worker, over WebRTC."""

@@ -1,0 +1,122 @@
+"""Which device drives the arm, and its latest command (latest wins, stale ones dropped)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from crowdteleop.control.command import DeviceCommand
+from crowdteleop.teleop.protocol import ClutchEvent, DeviceKind, GripperEvent, PoseCommand
+
+
+@dataclass(frozen=True)
+class Controller:
+    """The (peer, device) pair in control. Switching is explicit: `take_control`."""
+
+    peer_id: str
+    device: DeviceKind
+
+
+class NotInControlError(Exception):
+    """A command came from a device that does not drive the arm."""
+
+
+@dataclass
+class CommandBoard:
+    """Holds the controlling device's latest state.
+
+    Pose messages travel unordered and unreliable, clutch and gripper events reliable: all carry
+    one per-device sequence number, so whichever arrives last in sequence order wins and an old
+    pose can never undo a newer clutch release.
+    """
+
+    controller: Controller | None = None
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    quaternion: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0]))
+    engaged: bool = False
+    gripper_closed: bool = False
+    last_seq: int = -1
+    last_client_time: float = 0.0
+    has_pose: bool = False
+
+    def take_control(self, peer_id: str, device: DeviceKind) -> bool:
+        """Make (peer, device) the controller; returns whether anything changed."""
+        new = Controller(peer_id, device)
+        if new == self.controller:
+            return False
+        self.controller = new
+        self.engaged = False  # a new device starts with the clutch released
+        self.last_seq = -1
+        self.has_pose = False
+        return True
+
+    def release(self, peer_id: str) -> bool:
+        """The peer left: nobody drives until a device takes control."""
+        if self.controller is None or self.controller.peer_id != peer_id:
+            return False
+        self.controller = None
+        self.engaged = False
+        self.last_seq = -1
+        self.has_pose = False
+        return True
+
+    def _check(self, peer_id: str, device: DeviceKind, seq: int) -> bool:
+        """False for stale messages; raises NotInControlError for other devices."""
+        if self.controller is None:
+            self.take_control(peer_id, device)
+        if self.controller != Controller(peer_id, device):
+            raise NotInControlError(
+                f"{device} on this connection does not drive the arm "
+                f"({self.controller.device if self.controller else 'nobody'} does); "
+                "send take_control to switch"
+            )
+        if seq <= self.last_seq:
+            return False
+        self.last_seq = seq
+        return True
+
+    def apply_pose(self, peer_id: str, message: PoseCommand) -> bool:
+        if not self._check(peer_id, message.device, message.seq):
+            return False
+        self.position = np.array(message.position, dtype=float)
+        self.quaternion = np.array(message.quaternion, dtype=float)
+        self.engaged = message.engaged
+        self.gripper_closed = message.gripper
+        self.last_client_time = message.t
+        self.has_pose = True
+        return True
+
+    def apply_event(self, peer_id: str, message: ClutchEvent | GripperEvent) -> bool:
+        if not self._check(peer_id, message.device, message.seq):
+            return False
+        if isinstance(message, ClutchEvent):
+            # Engaging needs a pose to anchor on; a clutch press before any pose waits for one.
+            self.engaged = message.engaged and self.has_pose
+        else:
+            self.gripper_closed = message.closed
+        self.last_client_time = message.t
+        return True
+
+    def command(self) -> DeviceCommand:
+        return DeviceCommand(
+            position=self.position,
+            quaternion=self.quaternion,
+            engaged=self.engaged,
+            gripper_closed=self.gripper_closed,
+            seq=max(self.last_seq, 0),
+            timestamp=self.last_client_time,
+        )
+
+    def raw_command(self) -> dict[str, Any]:
+        """What the recorder stores for this step: the device's latest state as sent."""
+        return {
+            "seq": self.last_seq,
+            "t": self.last_client_time,
+            "device": self.controller.device if self.controller else None,
+            "position": self.position.tolist(),
+            "quaternion": self.quaternion.tolist(),
+            "engaged": self.engaged,
+            "gripper": self.gripper_closed,
+        }

@@ -1,0 +1,115 @@
+"""Typed configuration of one teleop server process (one session, one worker)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from crowdteleop.control.config import ControlConfig
+from crowdteleop.sim.config import SimConfig
+from crowdteleop.sim.registry import get_task
+
+Codec = Literal["vp8", "h264"]
+
+# aiortc's own clamps (aiortc.codecs.vpx / .h264); our values must lie inside them.
+CODEC_LIMITS_BPS = {"vp8": (250_000, 1_500_000), "h264": (500_000, 3_000_000)}
+
+
+class VideoConfig(BaseModel):
+    """The stream the worker watches.
+
+    VP8 starts at 300 kbps (not aiortc's 500 kbps) so a 500 kbps link never builds a standing
+    queue before the receiver's estimate arrives; 320x240 at 20 fps looks clean at that rate.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    camera: str = "frontview"
+    width: int = Field(320, ge=16, le=1920, multiple_of=2)
+    height: int = Field(240, ge=16, le=1080, multiple_of=2)
+    codec: Codec = "vp8"
+    start_bitrate_bps: int = 300_000
+    min_bitrate_bps: int = 250_000
+    max_bitrate_bps: int = 1_500_000
+    keepalive_fps: float = Field(
+        2.0, gt=0, le=30, description="frames per second sent while nothing in view moves"
+    )
+
+    @model_validator(mode="after")
+    def _bitrates_fit_the_codec(self) -> VideoConfig:
+        low, high = CODEC_LIMITS_BPS[self.codec]
+        values = (self.min_bitrate_bps, self.start_bitrate_bps, self.max_bitrate_bps)
+        if not low <= self.min_bitrate_bps <= self.start_bitrate_bps <= self.max_bitrate_bps:
+            raise ValueError(
+                f"bitrates must satisfy {low} <= min <= start <= max for {self.codec}, got {values}"
+            )
+        if self.max_bitrate_bps > high:
+            raise ValueError(f"{self.codec} max bitrate is {high} bps in aiortc")
+        return self
+
+
+class LimitsConfig(BaseModel):
+    """What one peer may send before its messages are refused."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    max_message_bytes: int = Field(4096, ge=256, le=1 << 20)
+    messages_per_second: float = Field(200.0, gt=0, description="sustained, per peer")
+    burst: int = Field(100, ge=1, description="messages a peer may send at once")
+    max_peers: int = Field(4, ge=1, le=16)
+
+
+class RecordingConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    directory: Path = Path("data/episodes")
+    keep_failed: bool = Field(True, description="keep reset / timeout / disconnect episodes")
+    flush_interval_s: float = Field(1.0, gt=0, le=1.0)
+
+
+class TeleopConfig(BaseModel):
+    """Everything one teleop server needs; the coordination server fills it per worker."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    session_id: str = "local"
+    worker_id: str = "anonymous"
+    token: str = Field("dev-token", min_length=8, description="workers' bearer token")
+    admin_token: str | None = Field(None, min_length=8, description="enables the admin channel")
+    sim: SimConfig = SimConfig()
+    control: ControlConfig = ControlConfig()
+    video: VideoConfig = VideoConfig()
+    limits: LimitsConfig = LimitsConfig()
+    recording: RecordingConfig = RecordingConfig()
+    ice_servers: list[str] = Field(
+        default_factory=list, description="STUN/TURN URLs; empty on loopback"
+    )
+    time_limit_s: float | None = Field(None, gt=0, description="default: the task's limit")
+    success_hold_steps: int = Field(10, ge=1, description="as robosuite's demo collector")
+    telemetry_interval_s: float = Field(1.0, gt=0)
+    seed: int = 0
+
+    @model_validator(mode="after")
+    def _controller_matches_sim(self) -> TeleopConfig:
+        if self.control.action_mode != self.sim.action_mode:
+            raise ValueError(
+                f"controller {self.control.controller!r} drives action mode "
+                f"{self.control.action_mode!r}; set sim.action_mode to match"
+            )
+        if self.admin_token is not None and self.admin_token == self.token:
+            raise ValueError("admin_token must differ from the workers' token")
+        return self
+
+    @property
+    def episode_time_limit_s(self) -> float:
+        return self.time_limit_s or get_task(self.sim.task).time_limit_s
+
+    @classmethod
+    def for_controller(cls, controller: str = "ik-velocity", **fields: object) -> TeleopConfig:
+        """A config whose simulation action mode follows `controller`."""
+        control = ControlConfig(controller=controller)
+        sim_fields = dict(fields.pop("sim", {}) or {})  # type: ignore[call-overload]
+        sim = SimConfig(**{**sim_fields, "action_mode": control.action_mode})
+        return cls(control=control, sim=sim, **fields)  # type: ignore[arg-type]

@@ -1,0 +1,265 @@
+"""One worker's session: the simulated robot, stepped on a fixed clock, off the event loop.
+
+The session knows nothing of WebRTC: each tick it takes the controlling device's latest
+command, steps and renders in its own simulation thread (the GL context lives there), records,
+and returns what the peers should see. `crowdteleop.teleop.server` moves that over the network.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from crowdteleop.control.teleoperator import Teleoperator
+from crowdteleop.data.recording import StepRecord
+from crowdteleop.data.storage import EpisodeStorage, LocalDirectoryStorage
+from crowdteleop.sim.factory import make_simulation
+from crowdteleop.sim.registry import get_task
+from crowdteleop.sim.types import ContactEvent, Pose, TaskProgress
+from crowdteleop.teleop.commands import CommandBoard
+from crowdteleop.teleop.config import TeleopConfig
+from crowdteleop.teleop.episode import EpisodeTracker, FinishedEpisode, Outcome, store_episode
+
+log = logging.getLogger(__name__)
+
+HAPTIC_REPEAT_S = 0.25  # while a contact lasts, buzz again this often
+
+
+@dataclass(frozen=True)
+class TickResult:
+    """What one control step produced, for the peers."""
+
+    image: np.ndarray
+    image_changed: bool
+    command_seq: int
+    success: bool
+    progress: TaskProgress | None
+    end_effector: np.ndarray
+    haptics: list[ContactEvent]
+    privileged: dict[str, Any] | None = None
+    step_index: int = 0
+
+
+@dataclass
+class _HapticFilter:
+    """Buzz on contact onset, then every HAPTIC_REPEAT_S while it lasts: a phone's vibration
+    motor cannot follow 20 Hz events and a steady stream would feel like noise."""
+
+    last_sent: dict[tuple[str, str], float] = field(default_factory=dict)
+
+    def select(self, contacts: list[ContactEvent], now: float) -> list[ContactEvent]:
+        current = {(c.robot_part, c.object): c for c in contacts}
+        chosen = []
+        for key, contact in current.items():
+            if now - self.last_sent.get(key, -1e9) >= HAPTIC_REPEAT_S:
+                self.last_sent[key] = now
+                chosen.append(contact)
+        for key in list(self.last_sent):
+            if key not in current:
+                del self.last_sent[key]
+        return chosen
+
+
+class TeleopSession:
+    """Build with `await TeleopSession.create(config)`; drive with `tick`."""
+
+    def __init__(self, config: TeleopConfig, executor: ThreadPoolExecutor) -> None:
+        self.config = config
+        self.board = CommandBoard()
+        self.storage: EpisodeStorage = LocalDirectoryStorage(config.recording.directory)
+        self.task = get_task(config.sim.task)
+        self._executor = executor
+        self._haptics = _HapticFilter()
+        self._seed = config.seed
+        self._last_image: np.ndarray | None = None
+        self._pending: list[str] = []
+        self._finished: list[FinishedEpisode] = []
+        self.sim_errors = 0
+        self.teleop: Teleoperator  # set in _build (sim thread)
+        self.tracker: EpisodeTracker
+
+    @classmethod
+    async def create(cls, config: TeleopConfig) -> TeleopSession:
+        executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim")
+        session = cls(config, executor)
+        await session._in_sim_thread(session._build)
+        return session
+
+    async def _in_sim_thread(self, function: Any, *args: Any) -> Any:
+        return await asyncio.get_running_loop().run_in_executor(self._executor, function, *args)
+
+    def _build(self) -> None:
+        sim = make_simulation(self.config.sim)
+        self.teleop = Teleoperator(sim, self.config.control)
+        self.teleop.reset(self._seed)
+        metadata = {
+            "session_id": self.config.session_id,
+            "worker_id": self.config.worker_id,
+            "task": self.config.sim.task,
+            "robot": self.config.sim.robot,
+            "controller": self.config.control.controller,
+            "action_mode": self.config.sim.action_mode,
+            "control_hz": self.config.sim.control_hz,
+            "camera": self.config.video.camera,
+            "sim_config": self.config.sim.model_dump(mode="json"),
+            "control_config": self.config.control.model_dump(mode="json"),
+            "model_xml": sim.mjcf_xml(),
+            "env_args": {
+                "env_name": self.task.env_name,
+                "type": 1,
+                "env_kwargs": {"robots": [self.config.sim.robot], **self.task.env_kwargs},
+            },
+        }
+        self.tracker = EpisodeTracker(
+            control_dt=sim.control_dt,
+            time_limit_s=self.config.episode_time_limit_s,
+            success_hold_steps=self.config.success_hold_steps,
+            recordings=self.config.recording.directory / "incoming",
+            metadata=metadata,
+            flush_interval_s=self.config.recording.flush_interval_s,
+        )
+
+    @property
+    def control_hz(self) -> float:
+        return self.config.sim.control_hz
+
+    # --- requests from peers (event loop) -------------------------------------------------
+    # They only leave a note: the tracker changes between steps, never during one.
+
+    def request_reset(self) -> None:
+        self._pending.append("reset")
+
+    def request_stop(self) -> None:
+        self._pending.append("stop")
+
+    def request_start(self) -> None:
+        self._pending.append("start")
+
+    def request_end(self, outcome: Outcome) -> None:
+        """End the running episode (the controlling device left); the scene resets."""
+        self._pending.append(outcome)
+
+    def pop_finished(self) -> list[FinishedEpisode]:
+        finished, self._finished = self._finished, []
+        return finished
+
+    def _end(self, outcome: Outcome, stop: bool = False) -> None:
+        finished = self.tracker.end(outcome, stop=stop)
+        if finished is not None:
+            self._finished.append(finished)
+
+    async def _apply_requests(self) -> None:
+        needs_reset = False
+        for request in self._pending:
+            if request == "stop":
+                self._end("reset", stop=True)
+            elif request == "start":
+                if self.tracker.state == "stopped":
+                    self.tracker.state = "ready"
+                    needs_reset = True
+            elif request == "reset":
+                if self.tracker.state != "stopped":
+                    self._end("reset")
+                    needs_reset = True
+            elif self.tracker.state == "running":  # disconnect
+                self._end(request)
+                needs_reset = True
+        self._pending.clear()
+        if needs_reset:
+            self._seed += 1
+            await self._in_sim_thread(self.teleop.reset, self._seed)
+
+    # --- the control step ------------------------------------------------------------------
+
+    async def tick(self, want_privileged: bool) -> TickResult | None:
+        """One control step. None while stopped (nothing moves, nothing is rendered) or when
+        the step failed (the episode ends as ``crash``; the next tick starts a fresh scene)."""
+        await self._apply_requests()
+        if self.tracker.state == "stopped":
+            return None
+        command = self.board.command()
+        raw = self.board.raw_command()
+        self.tracker.maybe_start(command.engaged)
+        try:
+            return await self._in_sim_thread(self._step, command, raw, want_privileged)
+        except Exception:  # a simulation failure ends the episode; the session lives on
+            log.exception("simulation step failed")
+            self.sim_errors += 1
+            self._end("crash")
+            self._pending.append("reset")
+            return None
+
+    def _step(self, command: Any, raw: dict[str, Any], want_privileged: bool) -> TickResult:
+        """Runs in the simulation thread."""
+        sim = self.teleop.sim
+        recording = self.tracker.recording
+        state = sim.get_state() if recording else None
+        started_wall, started = time.time(), time.perf_counter()
+        step = self.teleop.step(command)
+        duration = time.perf_counter() - started
+        if recording:
+            outcome = self.tracker.record(
+                StepRecord(
+                    index=self.tracker.steps,
+                    state=state,
+                    action=np.asarray(step.action, dtype=float),
+                    command=raw,
+                    server_time=started_wall,
+                    step_duration_s=duration,
+                    reward=float(step.result.reward),
+                    success=bool(step.result.success),
+                    contacts=[vars(c) for c in step.result.contacts],
+                )
+            )
+            if outcome is not None:
+                self._end(outcome)
+                self._seed += 1
+                self.teleop.reset(self._seed)
+        video = self.config.video
+        image = sim.render(video.camera, video.width, video.height)
+        changed = self._last_image is None or image is not self._last_image
+        if changed and self._last_image is not None and image.shape == self._last_image.shape:
+            changed = not np.array_equal(image, self._last_image)
+        self._last_image = image
+        privileged = {**_privileged(sim), "scene": self._seed} if want_privileged else None
+        return TickResult(
+            image=image,
+            image_changed=changed,
+            command_seq=command.seq,
+            success=step.result.success,
+            progress=step.result.progress,
+            end_effector=sim.robot_state().end_effector.position.copy(),
+            haptics=self._haptics.select(step.result.contacts, time.monotonic()),
+            privileged=privileged,
+            step_index=self.tracker.steps,
+        )
+
+    async def store(self, finished: FinishedEpisode, telemetry: dict[str, Any]) -> str | None:
+        """Finalize and store an episode's recording in a worker thread."""
+        return await asyncio.to_thread(
+            store_episode, finished, self.storage, self.config.recording.keep_failed, telemetry
+        )
+
+    async def close(self) -> None:
+        """End a running episode as ``disconnect``, store it, free the simulation."""
+        self._end("disconnect")
+        for finished in self.pop_finished():
+            await self.store(finished, {})
+        await self._in_sim_thread(self.teleop.sim.close)
+        self._executor.shutdown(wait=True)
+
+
+def _privileged(sim: Any) -> dict[str, Any]:
+    def flat(pose: Pose) -> list[float]:
+        return [*pose.position.tolist(), *pose.quaternion.tolist()]
+
+    return {
+        "end_effector": flat(sim.robot_state().end_effector),
+        "objects": {name: flat(pose) for name, pose in sim.object_poses().items()},
+    }

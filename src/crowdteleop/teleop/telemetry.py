@@ -1,0 +1,63 @@
+"""Per-session telemetry: loop rate and jitter, video, RTT, latency the clients measured."""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from crowdteleop.teleop.clock import LoopStats
+
+
+def percentile(values: list[float], q: float) -> float:
+    if not values:
+        return 0.0
+    ordered = sorted(values)
+    index = min(len(ordered) - 1, max(0, round(q / 100 * (len(ordered) - 1))))
+    return ordered[index]
+
+
+@dataclass
+class SessionTelemetry:
+    """Rolling figures a session reports every second and stores with each episode."""
+
+    rtt_ms: deque[float] = field(default_factory=lambda: deque(maxlen=200))
+    latency_ms: deque[float] = field(default_factory=lambda: deque(maxlen=2000))
+    client_fps: deque[float] = field(default_factory=lambda: deque(maxlen=50))
+    errors: Counter[str] = field(default_factory=Counter)
+    frames_published: int = 0
+    bitrate_kbps: float = 0.0
+    _fps_mark: tuple[float, int] = field(default_factory=lambda: (time.monotonic(), 0))
+    fps: float = 0.0
+
+    def frame_published(self) -> None:
+        self.frames_published += 1
+
+    def update_fps(self) -> None:
+        now = time.monotonic()
+        then, count = self._fps_mark
+        if now - then >= 0.5:
+            self.fps = (self.frames_published - count) / (now - then)
+            self._fps_mark = (now, self.frames_published)
+
+    def snapshot(self, loop: LoopStats, peer_errors: Counter[str]) -> dict[str, Any]:
+        errors = self.errors + peer_errors
+        latency = list(self.latency_ms)
+        rtt = list(self.rtt_ms)
+        return {
+            "loop_hz": round(loop.rate_hz(), 2),
+            "jitter_ms": round(loop.jitter_ms(), 3),
+            "ticks": loop.ticks,
+            "overruns": loop.overruns,
+            "skipped": loop.skipped,
+            "frames_sent": self.frames_published,
+            "fps": round(self.fps, 2),
+            "bitrate_kbps": round(self.bitrate_kbps, 1),
+            "rtt_ms": round(statistics.median(rtt), 2) if rtt else 0.0,
+            "latency_p50_ms": round(percentile(latency, 50), 1),
+            "latency_p95_ms": round(percentile(latency, 95), 1),
+            "client_fps": round(statistics.median(self.client_fps), 1) if self.client_fps else 0,
+            "errors": dict(errors),
+        }
