@@ -27,9 +27,13 @@ from crowdteleop.sim.fastrender.layers import (
 )
 from crowdteleop.sim.fastrender.msaa import draw_multisampled
 from crowdteleop.sim.fastrender.render_model import RenderModel
+from crowdteleop.sim.fastrender.textures import TextureResidency, textures_used
 
 INITIAL_BUFFER = (640, 480)  # offscreen buffer; grows to the largest frame asked for
 MAX_BACKGROUNDS = 8  # (camera, width, height) entries kept; each W*H*7 bytes (+4 see-through)
+# Background-only textures are parked once this many composited frames followed the last
+# single-pass one: a stream on a moving camera (one pass per frame) keeps them resident.
+PARK_AFTER_FRAMES = 40
 _SKYBOX = mujoco.mjtRndFlag.mjRND_SKYBOX
 _REFLECTION = mujoco.mjtRndFlag.mjRND_REFLECTION
 
@@ -51,10 +55,11 @@ class Compositor:
         """Call with the shared GL context current."""
         self._render = render_model
         model = render_model.model
-        model.vis.global_.offwidth, model.vis.global_.offheight = INITIAL_BUFFER
         self._buffer = INITIAL_BUFFER
-        self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_50)
-        self._context.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
+        self._shadow_size = int(model.vis.quality.shadowsize)
+        self._textures = TextureResidency(model)
+        self._context = self._make_context(shadows=layers.shadows)
+        self._composited_in_a_row = PARK_AFTER_FRAMES
         self._scene = mujoco.MjvScene(model, maxgeom=2 * (model.ngeom + model.nsite) + 1000)
         self._camera = mujoco.MjvCamera()
         self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
@@ -62,13 +67,40 @@ class Compositor:
         self._backgrounds: OrderedDict[tuple[int, int, int], Background] = OrderedDict()
         self.background_draws = 0  # counters for tests and benchmarks
         self.single_pass_frames = 0
+        self.textures_parked = False  # set when textures were parked; the owner trims the heap
         self._see_through_memo: tuple[tuple, bool] | None = None
         self.set_layers(layers)
+
+    def _make_context(self, shadows: bool) -> mujoco.MjrContext:
+        """An `MjrContext` for the render model (meshes and textures uploaded).
+
+        The shadow map (``shadowsize``, 4096^2 depth texels: 64 MiB in llvmpipe) is made only
+        when a light casts shadows; robosuite's lights do not.
+        """
+        model = self._render.model
+        model.vis.global_.offwidth, model.vis.global_.offheight = self._buffer
+        model.vis.quality.shadowsize = self._shadow_size if shadows else 0
+        context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_50)
+        context.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
+        self._textures.context_rebuilt()
+        return context
 
     def set_layers(self, layers: Layers) -> None:
         """Adopt new layers (colours changed); every cached background is stale."""
         self._layers = layers
-        layers.apply(self._render.model)
+        model = self._render.model
+        if layers.shadows and not self._context.shadowSize:  # a light started casting shadows
+            self._context.free()
+            self._context = self._make_context(shadows=True)
+        self._textures.set_per_frame(
+            textures_used(
+                model,
+                np.isin(layers.geom_layer, (MOVING, STATIC_SEE_THROUGH)),
+                np.isin(layers.site_layer, (MOVING, STATIC_SEE_THROUGH)),
+                tendons=True,
+            )
+        )
+        layers.apply(model)
         self._background_option = layers.option(STATIC_SEE_THROUGH, STATIC)
         self._moving_option = layers.option(STATIC_SEE_THROUGH, MOVING)
         self._full_option = layers.option(STATIC_SEE_THROUGH, STATIC, MOVING)
@@ -84,6 +116,9 @@ class Compositor:
         background = self._background(camera, width, height)
         if self._see_through_part_visible(background, camera, width, height):
             return self._single_pass(camera, width, height)
+        self._composited_in_a_row += 1
+        if self._composited_in_a_row >= PARK_AFTER_FRAMES and self._textures.park(self._context):
+            self.textures_parked = True
         rgb, depth = self._draw(camera, width, height, self._moving_option, skybox=False)
         # Bottom-up like GL; only the (few) pixels the moving layer wins are copied.
         frame = background.rgb_bottom_up.copy()
@@ -130,6 +165,8 @@ class Compositor:
         the picture's correctness is worth the milliseconds.
         """
         self.single_pass_frames += 1
+        self._composited_in_a_row = 0
+        self._textures.restore(self._context)
         rgb, _ = self._draw(camera, width, height, self._full_option, skybox=True, reflection=True)
         return np.ascontiguousarray(rgb[::-1])
 
@@ -139,6 +176,7 @@ class Compositor:
         if cached is not None:
             self._backgrounds.move_to_end(key)
             return cached
+        self._textures.restore(self._context)
         rgb, depth = self._draw(
             camera, width, height, self._background_option, skybox=True, reflection=True
         )

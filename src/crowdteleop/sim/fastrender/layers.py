@@ -43,6 +43,7 @@ class Layers:
     composite_ok: bool
     see_through_moving_geoms: np.ndarray  # geom ids
     see_through_moving_sites: np.ndarray  # site ids
+    shadows: bool = False  # an active light casts shadows (the GL context needs a shadow map)
 
     @classmethod
     def of(
@@ -78,6 +79,7 @@ class Layers:
             composite_ok=not shadows and model.nskin == 0 and model.nflex == 0,
             see_through_moving_geoms=np.flatnonzero(geom_shown & geom_moving & geom_clear),
             see_through_moving_sites=np.flatnonzero(site_shown & site_moving & site_clear),
+            shadows=shadows,
         )
 
     def apply(self, model: mujoco.MjModel) -> None:

@@ -102,6 +102,9 @@ class FastSceneRenderer:
             self._render.sync(physics_data)
             with self._gl.current():
                 frame = self._compositor.frame(*key)
+            if self._compositor.textures_parked:  # tens of MiB just freed: give them back
+                self._compositor.textures_parked = False
+                _return_freed_heap()
             self.renders_performed += 1
             self._frames[key] = (pose, frame)
             while len(self._frames) > MAX_CACHED_FRAMES:
@@ -145,7 +148,8 @@ def _return_freed_heap() -> None:
     """Hand the compiler's freed scratch memory back to the OS (glibc keeps it otherwise).
 
     Compiling the render model and uploading it to GL leave ~60 MiB of freed heap resident
-    per renderer; `malloc_trim` is process-wide but only releases memory nobody uses.
+    per renderer, parking textures (`textures.py`) frees ~70 MiB; `malloc_trim` is
+    process-wide but only releases memory nobody uses.
     """
     name = ctypes.util.find_library("c")
     if name and platform.system() == "Linux":
