@@ -1,0 +1,424 @@
+"""Episode recording: what is appended comes back bit for bit, from the finished HDF5 file and
+from the write-ahead log a killed process leaves; bad input never damages what was recorded."""
+
+from __future__ import annotations
+
+import dataclasses
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from crowdteleop.data import (
+    CorruptEpisodeError,
+    EpisodeRecorder,
+    InvalidRecordError,
+    RecordingError,
+    StepRecord,
+    read_episode,
+    read_partial,
+    recover_orphans,
+)
+from crowdteleop.data.recording import OUTCOMES
+from crowdteleop.data.storage import (
+    EpisodeStorage,
+    InvalidKeyError,
+    KeyExistsError,
+    LocalDirectoryStorage,
+    ObjectNotFoundError,
+)
+from crowdteleop.errors import InvalidActionError, InvalidStateError
+from tests import _recording_child as child
+
+METADATA = {
+    "task": "lift",
+    "robot": "Sawyer",
+    "controller": "ik-velocity",
+    "session_id": "s-1",
+    "worker_id": "w-7",
+    "model_xml": "<mujoco model='lift'>" + "<body/>" * 20000 + "</mujoco>",  # ~140 kB
+    "env_args": {"env_name": "Lift", "env_kwargs": {"robots": ["Sawyer"]}},
+}
+
+
+def record(directory: Path, steps: int, episode_id: str = "ep-1", **kwargs) -> EpisodeRecorder:
+    recorder = EpisodeRecorder(directory, episode_id, METADATA, **kwargs)
+    for index in range(steps):
+        recorder.append(child.make_step(index))
+    return recorder
+
+
+def bits(array: np.ndarray) -> bytes:
+    return np.ascontiguousarray(array, dtype="<f8").tobytes()
+
+
+def assert_holds_child_steps(episode, steps: int) -> None:
+    expected = [child.make_step(i) for i in range(steps)]
+    assert episode.steps == steps
+    assert bits(episode.states) == bits(np.array([s.state for s in expected]))
+    assert bits(episode.actions) == bits(np.array([s.action for s in expected]))
+    assert episode.commands == [s.command for s in expected]
+    assert episode.contacts == [s.contacts for s in expected]
+    assert bits(episode.step_duration_s) == bits(np.array([s.step_duration_s for s in expected]))
+
+
+def test_round_trip_is_bit_exact_and_robomimic_shaped(tmp_path):
+    recorder = record(tmp_path, 30, flush_interval_s=0.0)
+    assert (recorder.steps, recorder.flushed_steps) == (30, 30)
+    path = recorder.finalize("success", {"telemetry": {"rtt_ms": 12.5}})
+    assert path == tmp_path / "ep-1.hdf5"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ep-1.hdf5"]  # the log is gone
+
+    episode = read_episode(path)
+    assert_holds_child_steps(episode, 30)
+    assert (episode.episode_id, episode.outcome, episode.recovered) == ("ep-1", "success", False)
+    assert episode.model_xml == METADATA["model_xml"]
+    assert episode.env_args == {"env_name": "Lift", "type": 1, "env_kwargs": {"robots": ["Sawyer"]}}
+    assert episode.metadata["worker_id"] == "w-7"
+    assert episode.metadata["telemetry"] == {"rtt_ms": 12.5}
+    assert "model_xml" not in episode.metadata
+    assert episode.dones.tolist() == [0] * 29 + [1]
+
+    with h5py.File(path, "r") as file:
+        demo = file["data/demo_0"]
+        assert demo["states"].shape == (30, child.STATE_SIZE)
+        assert demo["actions"].shape == (30, child.ACTION_SIZE)
+        assert demo["rewards"].shape == demo["dones"].shape == (30,)
+        assert demo.attrs["num_samples"] == file["data"].attrs["total"] == 30
+        assert demo.attrs["model_file"] == METADATA["model_xml"]
+        assert json.loads(file["data"].attrs["env_args"])["type"] == 1
+        assert file.attrs["outcome"] == "success"
+        assert demo["commands/seq"][()].tolist() == list(range(30))
+        assert demo["commands/client_time"][3] == 1000.0 + 3 / 20
+        assert np.isnan(demo["commands/position"][()]).all()  # the child's commands lack it
+        assert json.loads(demo["contacts"].asstr()[0])[0]["object"] == "cube"
+
+
+def test_appends_are_buffered_until_the_flush_interval(tmp_path):
+    recorder = record(tmp_path, 5, flush_interval_s=3600.0)
+    assert (recorder.steps, recorder.flushed_steps) == (5, 0)
+    assert read_partial(recorder.wal_path).steps == 0  # the header alone is durable
+    recorder.flush()
+    assert recorder.flushed_steps == 5
+    assert_holds_child_steps(read_partial(recorder.wal_path), 5)
+    recorder.finalize("reset")
+
+
+def test_bad_steps_raise_and_leave_the_recording_intact(tmp_path):
+    recorder = record(tmp_path, 3, flush_interval_s=0.0)
+    good = child.make_step(3)
+
+    def bad(**changes) -> StepRecord:
+        return dataclasses.replace(good, **changes)
+
+    nan_state = good.state.copy()
+    nan_state[5] = np.nan
+    with pytest.raises(InvalidStateError, match="NaN"):
+        recorder.append(bad(state=nan_state))
+    with pytest.raises(InvalidActionError, match="NaN or infinity"):
+        recorder.append(bad(action=np.full(child.ACTION_SIZE, np.inf)))
+    with pytest.raises(InvalidStateError, match="earlier steps"):
+        recorder.append(bad(state=good.state[:-1]))
+    with pytest.raises(InvalidActionError, match="earlier steps"):
+        recorder.append(bad(action=np.zeros(child.ACTION_SIZE + 1)))
+    with pytest.raises(InvalidStateError, match="flat vector"):
+        recorder.append(bad(state=good.state.reshape(1, -1)))
+    with pytest.raises(InvalidRecordError, match="out of order"):
+        recorder.append(bad(index=7))
+    with pytest.raises(InvalidRecordError, match="JSON"):
+        recorder.append(bad(command={"t": float("nan")}))
+    with pytest.raises(InvalidRecordError, match="JSON"):
+        recorder.append(bad(contacts=[{"object": object()}]))
+    with pytest.raises(InvalidRecordError, match="reward"):
+        recorder.append(bad(reward=float("nan")))
+    with pytest.raises(InvalidRecordError, match="outcome"):
+        recorder.finalize("won")  # type: ignore[arg-type]
+    assert (recorder.steps, recorder.flushed_steps) == (3, 3)
+
+    recorder.append(good)
+    path = recorder.finalize("timeout")
+    assert_holds_child_steps(read_episode(path), 4)
+    for call in (lambda: recorder.append(child.make_step(4)), recorder.flush):
+        with pytest.raises(RecordingError, match="finalized"):
+            call()
+    with pytest.raises(RuntimeError):
+        recorder.finalize("success")
+    assert read_episode(path).outcome == "timeout"
+
+
+def test_a_failed_flush_keeps_the_log_whole_and_retries(tmp_path, monkeypatch):
+    recorder = record(tmp_path, 2, flush_interval_s=0.0)
+    real_write, wal_inode = os.write, recorder.wal_path.stat().st_ino
+
+    def disk_full_midway(fd, data):
+        if os.fstat(fd).st_ino == wal_inode:
+            real_write(fd, bytes(data[: len(data) // 2]))
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(fd, data)
+
+    monkeypatch.setattr(os, "write", disk_full_midway)
+    with pytest.raises(RecordingError, match="No space left"):
+        recorder.append(child.make_step(2))  # buffered, not durable
+    assert (recorder.steps, recorder.flushed_steps) == (3, 2)
+    assert read_partial(recorder.wal_path).ignored_tail_bytes == 0  # cut back to whole records
+    monkeypatch.undo()
+    recorder.append(child.make_step(3))  # the next flush writes both
+    assert recorder.flushed_steps == 4
+    assert_holds_child_steps(read_episode(recorder.finalize("success")), 4)
+
+
+def test_bad_episode_ids_and_metadata_are_refused(tmp_path):
+    for episode_id in ("", "../escape", "a/b", ".hidden", "x" * 200):
+        with pytest.raises(InvalidRecordError, match="episode id"):
+            EpisodeRecorder(tmp_path, episode_id, METADATA)
+    with pytest.raises(InvalidRecordError, match="JSON"):
+        EpisodeRecorder(tmp_path, "ep", {"when": object()})
+    with pytest.raises(InvalidRecordError, match="env_name"):
+        EpisodeRecorder(tmp_path, "ep", {"env_args": {"env_kwargs": {}}})
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_one_episode_id_records_once(tmp_path):
+    recorder = record(tmp_path, 2)
+    with pytest.raises(RecordingError, match="already has a write-ahead log"):
+        EpisodeRecorder(tmp_path, "ep-1", METADATA)
+    path = recorder.finalize("success")
+    with pytest.raises(RecordingError, match="already recorded"):
+        EpisodeRecorder(tmp_path, "ep-1", METADATA)
+    assert_holds_child_steps(read_episode(path), 2)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ep-1.hdf5"]
+
+
+def test_an_empty_episode_finalizes(tmp_path):
+    path = EpisodeRecorder(tmp_path, "empty", METADATA).finalize("disconnect")
+    episode = read_episode(path)
+    assert (episode.steps, episode.outcome) == (0, "disconnect")
+    assert episode.states.shape[0] == episode.actions.shape[0] == 0
+
+
+def test_a_torn_or_damaged_log_tail_is_ignored(tmp_path):
+    recorder = record(tmp_path, 2, flush_interval_s=0.0)
+    two_steps = recorder.wal_path.stat().st_size
+    recorder.append(child.make_step(2))
+    log = recorder.wal_path.read_bytes()
+    recorder.close()
+    copy = tmp_path / "copy.wal"
+
+    for cut in range(two_steps, len(log)):  # every way the last record can be torn
+        copy.write_bytes(log[:cut])
+        partial = read_partial(copy)
+        assert (partial.steps, partial.ignored_tail_bytes) == (2, cut - two_steps)
+    assert_holds_child_steps(partial, 2)
+
+    copy.write_bytes(log + bytes(4096))  # the zeros a power loss can leave
+    assert (read_partial(copy).steps, read_partial(copy).ignored_tail_bytes) == (3, 4096)
+    damaged = bytearray(log)
+    damaged[two_steps - 10] ^= 0x01  # one flipped bit in the second step
+    copy.write_bytes(bytes(damaged))
+    assert read_partial(copy).steps == 1
+
+    copy.write_bytes(log[:20])  # inside the header
+    with pytest.raises(CorruptEpisodeError, match="header"):
+        read_partial(copy)
+    copy.write_bytes(b"PK\x03\x04 not a log")
+    with pytest.raises(CorruptEpisodeError, match="not a crowdteleop write-ahead log"):
+        read_partial(copy)
+
+
+def test_recover_orphans_finalizes_abandoned_logs_as_crashes(tmp_path):
+    record(tmp_path, 7, "abandoned").close()  # as if the process died after a flush
+    live = record(tmp_path, 3, "live", flush_interval_s=0.0)
+    (tmp_path / "broken.wal").write_bytes(b"CTWAL01\n\x00\x00")
+    (tmp_path / ".gone.wal.123-4.tmp").write_bytes(b"CTWAL01\n")
+
+    assert recover_orphans(tmp_path) == [tmp_path / "abandoned.hdf5"]
+    episode = read_episode(tmp_path / "abandoned.hdf5")
+    assert (episode.outcome, episode.recovered) == ("crash", True)
+    assert_holds_child_steps(episode, 7)
+    assert episode.model_xml == METADATA["model_xml"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "abandoned.hdf5",
+        "broken.wal.corrupt",
+        "live.wal",
+    ]
+    assert recover_orphans(tmp_path) == []  # the live recorder's log is left alone
+    assert_holds_child_steps(read_episode(live.finalize("success")), 3)
+    assert recover_orphans(tmp_path / "missing") == []
+
+
+def test_recover_orphans_after_a_crash_inside_finalize(tmp_path):
+    # Killed after the file's rename, before the log's removal: the finished file wins.
+    recorder = record(tmp_path, 4, "renamed", flush_interval_s=0.0)
+    log = recorder.wal_path.read_bytes()
+    path = recorder.finalize("success")
+    recorder.wal_path.write_bytes(log)
+    # Killed while writing the file: a temporary half file, the log intact.
+    record(tmp_path, 5, "half").close()
+    (tmp_path / ".half.hdf5.tmp").write_bytes(b"\x89HDF\r\n half")
+
+    assert recover_orphans(tmp_path) == [tmp_path / "half.hdf5", path]
+    assert read_episode(path).outcome == "success"
+    assert_holds_child_steps(read_episode(tmp_path / "half.hdf5"), 5)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["half.hdf5", "renamed.hdf5"]
+
+
+def test_foreign_or_truncated_episode_files_raise_clearly(tmp_path):
+    foreign = tmp_path / "foreign.hdf5"
+    with h5py.File(foreign, "w") as file:
+        file.create_dataset("data", data=[1, 2, 3])
+    with pytest.raises(CorruptEpisodeError, match="not a crowdteleop episode"):
+        read_episode(foreign)
+    path = record(tmp_path, 5).finalize("success")
+    truncated = tmp_path / "truncated.hdf5"
+    truncated.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(CorruptEpisodeError):
+        read_episode(truncated)
+    with pytest.raises(CorruptEpisodeError, match="not a readable HDF5"):
+        read_episode(tmp_path / "missing.hdf5")
+
+
+@pytest.mark.parametrize("flushes_before_kill", [0, 3])
+def test_kill_9_keeps_every_step_up_to_the_last_reported_flush(tmp_path, flushes_before_kill):
+    process = subprocess.Popen(
+        [sys.executable, str(Path(child.__file__)), str(tmp_path), "killed"],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=Path(__file__).parent.parent,
+    )
+    try:
+        assert process.stdout is not None
+        assert process.stdout.readline() == "started\n"
+        reported = 0
+        for _ in range(flushes_before_kill):
+            line = process.stdout.readline()
+            assert line.startswith("flushed "), line
+            reported = int(line.split()[1])
+        os.kill(process.pid, signal.SIGKILL)
+    finally:
+        process.kill()
+        process.wait(timeout=30)
+    assert process.returncode == -signal.SIGKILL
+
+    partial = read_partial(tmp_path / "killed.wal")
+    assert partial.steps >= reported
+    if flushes_before_kill:
+        assert reported > 0
+    assert_holds_child_steps(partial, partial.steps)  # every durable step, bit for bit
+    assert partial.model_xml == child.METADATA["model_xml"]
+    assert recover_orphans(tmp_path) == [tmp_path / "killed.hdf5"]
+    episode = read_episode(tmp_path / "killed.hdf5")
+    assert episode.outcome == "crash"
+    assert_holds_child_steps(episode, partial.steps)
+
+
+JSON = st.recursive(
+    st.none()
+    | st.booleans()
+    | st.integers()
+    | st.floats(allow_nan=False, allow_infinity=False)
+    | st.text(),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(), inner, max_size=3),
+    max_leaves=8,
+)
+FLOATS = st.floats(allow_nan=False, allow_infinity=False, allow_subnormal=True)
+
+
+@st.composite
+def episodes(draw) -> list[StepRecord]:
+    steps = draw(st.integers(0, 8))
+    sizes = draw(st.integers(1, 80)), draw(st.integers(1, 10))
+    return [
+        StepRecord(
+            index=index,
+            state=draw(hnp.arrays(np.float64, sizes[0], elements=FLOATS)),
+            action=draw(hnp.arrays(np.float64, sizes[1], elements=FLOATS)),
+            command=draw(st.dictionaries(st.text(), JSON, max_size=4)),
+            server_time=draw(FLOATS),
+            step_duration_s=draw(FLOATS),
+            reward=draw(FLOATS),
+            success=draw(st.booleans()),
+            contacts=draw(st.lists(st.dictionaries(st.text(), JSON, max_size=3), max_size=3)),
+        )
+        for index in range(steps)
+    ]
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(episodes(), st.sampled_from(OUTCOMES), st.sampled_from([0.0, 3600.0]))
+def test_round_trip_property(steps, outcome, flush_interval_s):
+    with tempfile.TemporaryDirectory() as directory:
+        recorder = EpisodeRecorder(Path(directory), "prop", {"k": 1}, flush_interval_s)
+        for step in steps:
+            recorder.append(step)
+        partial = read_partial(recorder.wal_path)
+        episode = read_episode(recorder.finalize(outcome))
+        assert partial.steps == (len(steps) if flush_interval_s == 0.0 else 0)
+        assert (episode.steps, episode.outcome, episode.metadata) == (len(steps), outcome, {"k": 1})
+        for name in ("state", "action"):
+            recorded = getattr(episode, name + "s")
+            assert bits(recorded) == bits(np.array([getattr(s, name) for s in steps]))
+        for name in ("server_time", "step_duration_s", "reward"):
+            recorded = getattr(episode, name if name != "reward" else "rewards")
+            assert bits(recorded) == bits(np.array([getattr(s, name) for s in steps]))
+        assert episode.success.tolist() == [s.success for s in steps]
+        assert episode.commands == [s.command for s in steps]
+        assert episode.contacts == [s.contacts for s in steps]
+
+
+def test_local_storage_put_get_list(tmp_path):
+    storage = LocalDirectoryStorage(tmp_path / "store")
+    assert isinstance(storage, EpisodeStorage)
+    episode = record(tmp_path / "rec", 6).finalize("success")
+    uris = {key: storage.put(episode, key) for key in ("lift/a.hdf5", "lift/b c é.hdf5", "can.h5")}
+    assert all(uri.startswith("file:///") for uri in uris.values())
+    assert storage.list() == ["can.h5", "lift/a.hdf5", "lift/b c é.hdf5"]
+    assert storage.list("lift/") == ["lift/a.hdf5", "lift/b c é.hdf5"]
+    assert storage.list("nothing") == []
+    fetched = storage.get(uris["lift/b c é.hdf5"], tmp_path / "out" / "back.hdf5")
+    assert fetched.read_bytes() == episode.read_bytes()
+    assert_holds_child_steps(read_episode(fetched), 6)
+    assert storage.uri("can.h5") == uris["can.h5"]
+    hidden = [p for p in (tmp_path / "store").rglob("*") if p.name.startswith(".")]
+    assert hidden == []  # no temporary file left behind
+
+
+def test_local_storage_put_is_idempotent_and_never_replaces(tmp_path):
+    storage = LocalDirectoryStorage(tmp_path / "store")
+    first, other = tmp_path / "first", tmp_path / "other"
+    first.write_bytes(b"demonstration")
+    other.write_bytes(b"another one")
+    uri = storage.put(first, "ep.hdf5")
+    assert storage.put(first, "ep.hdf5") == uri  # a retry
+    with pytest.raises(KeyExistsError, match="different content"):
+        storage.put(other, "ep.hdf5")
+    assert storage.get(uri, tmp_path / "back").read_bytes() == b"demonstration"
+    assert storage.list() == ["ep.hdf5"]
+
+
+def test_local_storage_refuses_bad_keys_and_uris(tmp_path):
+    storage = LocalDirectoryStorage(tmp_path / "store")
+    source = tmp_path / "file"
+    source.write_bytes(b"x")
+    for key in ("", "/abs", "../escape", "a//b", "a/./b", ".hidden", "a\\b", "k" * 1025):
+        with pytest.raises(InvalidKeyError):
+            storage.put(source, key)
+    outside = (tmp_path / "file").as_uri()
+    for uri in (outside, "s3://bucket/key", storage.uri("a") + "/../../file"):
+        with pytest.raises(InvalidKeyError):
+            storage.get(uri, tmp_path / "x")
+    with pytest.raises(ObjectNotFoundError):
+        storage.get(storage.uri("missing.hdf5"), tmp_path / "x")
+    with pytest.raises(FileNotFoundError):
+        storage.put(tmp_path / "missing", "key")
+    assert storage.list() == []
