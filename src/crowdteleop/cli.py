@@ -140,7 +140,7 @@ def teleop_server(
             fields["recording"] = {**fields.get("recording", {}), "directory": str(record_dir)}
         settings = TeleopConfig.model_validate(fields)
     except (CrowdteleopError, ValidationError, OSError, ValueError) as exc:
-        console.print(f"[red]error:[/red] {_explain(exc)}")
+        Console(stderr=True).print(f"[red]error:[/red] {_explain(exc)}")
         raise typer.Exit(2) from exc
     with contextlib.suppress(KeyboardInterrupt):
         asyncio.run(serve(settings, host, port))

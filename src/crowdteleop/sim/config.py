@@ -21,6 +21,12 @@ class SimConfig(BaseModel):
     action_mode: ActionMode = "joint-velocity"
     control_hz: float = Field(20.0, gt=0, le=500, description="control steps per simulated second")
     max_joint_speed: float = Field(1.5, gt=0, le=10, description="rad/s, joint-velocity mode")
+    model_seed: int = Field(
+        0,
+        ge=0,
+        description="seeds the model's own randomization (e.g. Lift's cube size), so a "
+        "recorded config rebuilds the very model its episodes were recorded on",
+    )
 
     @field_validator("task")
     @classmethod

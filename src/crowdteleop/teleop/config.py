@@ -15,6 +15,12 @@ Codec = Literal["vp8", "h264"]
 
 # aiortc's own clamps (aiortc.codecs.vpx / .h264); our values must lie inside them.
 CODEC_LIMITS_BPS = {"vp8": (250_000, 1_500_000), "h264": (500_000, 3_000_000)}
+# (floor, start, ceiling) per codec when the config leaves them out. VP8 starts below a
+# 500 kbps link; H.264 cannot go below 500 kbps in aiortc, so it starts at its floor.
+DEFAULT_BITRATES_BPS = {
+    "vp8": (250_000, 300_000, 1_500_000),
+    "h264": (500_000, 500_000, 3_000_000),
+}
 
 
 class VideoConfig(BaseModel):
@@ -22,6 +28,7 @@ class VideoConfig(BaseModel):
 
     VP8 starts at 300 kbps (not aiortc's 500 kbps) so a 500 kbps link never builds a standing
     queue before the receiver's estimate arrives; 320x240 at 20 fps looks clean at that rate.
+    Bitrates left out take the codec's defaults (`DEFAULT_BITRATES_BPS`).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -30,12 +37,25 @@ class VideoConfig(BaseModel):
     width: int = Field(320, ge=16, le=1920, multiple_of=2)
     height: int = Field(240, ge=16, le=1080, multiple_of=2)
     codec: Codec = "vp8"
-    start_bitrate_bps: int = 300_000
-    min_bitrate_bps: int = 250_000
-    max_bitrate_bps: int = 1_500_000
+    start_bitrate_bps: int = 0
+    min_bitrate_bps: int = 0
+    max_bitrate_bps: int = 0
     keepalive_fps: float = Field(
         2.0, gt=0, le=30, description="frames per second sent while nothing in view moves"
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _codec_defaults(cls, data: object) -> object:
+        if isinstance(data, dict):
+            floor, start, ceiling = DEFAULT_BITRATES_BPS[data.get("codec", "vp8")]
+            data = {
+                "min_bitrate_bps": floor,
+                "start_bitrate_bps": start,
+                "max_bitrate_bps": ceiling,
+                **data,
+            }
+        return data
 
     @model_validator(mode="after")
     def _bitrates_fit_the_codec(self) -> VideoConfig:

@@ -162,14 +162,14 @@ class TeleopServer:
                 await self._drop(peer)
 
         try:
+            video = None
+            if offer.role != "phone" and "\nm=video " in offer.sdp:
+                # Made before the offer is applied, so the codec preference shapes the answer
+                # (aiortc negotiates codecs in setRemoteDescription).
+                peer.track = SimVideoTrack(self.frames)
+                video = pc.addTransceiver(peer.track, direction="sendonly")
+                self._prefer_codec(video)
             await pc.setRemoteDescription(RTCSessionDescription(offer.sdp, offer.type))
-            if offer.role != "phone":
-                for transceiver in pc.getTransceivers():
-                    if transceiver.kind == "video":
-                        peer.track = SimVideoTrack(self.frames)
-                        pc.addTrack(peer.track)
-                        self._prefer_codec(transceiver)
-                        break
             await pc.setLocalDescription(await pc.createAnswer())
         except Exception:
             await self._drop(peer)

@@ -65,6 +65,7 @@ class RobosuiteSimulation:
             hard_reset=False,
             ignore_done=True,
             horizon=10**9,
+            seed=config.model_seed,
             **self.task.env_kwargs,
         )
         self._xml = ""
