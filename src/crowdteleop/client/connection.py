@@ -22,6 +22,7 @@ from crowdteleop.teleop.protocol import (
     PROTOCOL_VERSION,
     DeviceKind,
     EpisodeEnded,
+    EpisodeSaved,
     ErrorEvent,
     FrameTag,
     HapticEvent,
@@ -54,6 +55,7 @@ class ClientState:
     telemetry: Telemetry | None = None
     privileged: PrivilegedState | None = None
     episodes: list[EpisodeEnded] = field(default_factory=list)
+    saved: list[EpisodeSaved] = field(default_factory=list)
     haptics: list[HapticEvent] = field(default_factory=list)
     errors: list[ErrorEvent] = field(default_factory=list)
     frames_received: int = 0
@@ -189,6 +191,8 @@ class TeleopClient:
             state.haptics.append(message)
         elif isinstance(message, EpisodeEnded):
             state.episodes.append(message)
+        elif isinstance(message, EpisodeSaved):
+            state.saved.append(message)
         elif isinstance(message, ErrorEvent):
             state.errors.append(message)
         elif isinstance(message, Telemetry):

@@ -106,6 +106,10 @@ class TeleopConfig(BaseModel):
     ice_servers: list[str] = Field(
         default_factory=list, description="STUN/TURN URLs; empty on loopback"
     )
+    report_url: str | None = Field(
+        None, description="the coordination server's URL for episode reports (POST JSON)"
+    )
+    report_token: str | None = Field(None, min_length=8, description="bearer token for reports")
     time_limit_s: float | None = Field(None, gt=0, description="default: the task's limit")
     success_hold_steps: int = Field(10, ge=1, description="as robosuite's demo collector")
     telemetry_interval_s: float = Field(1.0, gt=0)

@@ -220,6 +220,16 @@ class EpisodeEnded(_Message):
     successes: int
 
 
+class EpisodeSaved(_Message):
+    """The episode's recording is durable (fsync'd and confirmed by the store): only now may
+    the worker be told their demonstration counts."""
+
+    type: Literal["saved"] = "saved"
+    episode: int
+    outcome: Literal["success", "reset", "timeout", "disconnect", "crash"]
+    uri: str
+
+
 class PingReply(_Message):
     """The server's answer to a client `ping`, echoing its id and time."""
 
@@ -263,6 +273,7 @@ ServerMessage = Annotated[
     | TaskStatus
     | FrameTag
     | EpisodeEnded
+    | EpisodeSaved
     | PingReply
     | ServerPing
     | Telemetry

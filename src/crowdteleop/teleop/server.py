@@ -29,6 +29,7 @@ from crowdteleop.teleop.guard import InboundGuard
 from crowdteleop.teleop.peers import Peer
 from crowdteleop.teleop.protocol import (
     EpisodeEnded,
+    EpisodeSaved,
     FrameTag,
     HapticEvent,
     Hello,
@@ -39,6 +40,7 @@ from crowdteleop.teleop.protocol import (
     Telemetry,
     json_schema,
 )
+from crowdteleop.teleop.report import report_episode
 from crowdteleop.teleop.session import TeleopSession, TickResult
 from crowdteleop.teleop.telemetry import SessionTelemetry
 from crowdteleop.teleop.video import FrameSource, SimVideoTrack, configure_encoder_bitrates
@@ -364,8 +366,27 @@ class TeleopServer:
                 log.exception("storing episode %s failed", finished.episode_id)
                 self.telemetry.errors["storage"] += 1
                 return
-            if uri is not None:
-                self.stored.append(uri)
+            if uri is None:
+                return
+            self.stored.append(uri)
+            self._broadcast(
+                EpisodeSaved(episode=finished.number, outcome=finished.outcome, uri=uri)
+            )
+            if self.config.report_url:
+                payload = {
+                    "session_id": self.config.session_id,
+                    "worker_id": self.config.worker_id,
+                    "episode": finished.number,
+                    "episode_id": finished.episode_id,
+                    "outcome": finished.outcome,
+                    "steps": finished.steps,
+                    "duration_s": finished.steps / self.config.sim.control_hz,
+                    "uri": uri,
+                    "telemetry": snapshot,
+                }
+                ok = await report_episode(self.config.report_url, self.config.report_token, payload)
+                if not ok:
+                    self.telemetry.errors["report"] += 1
 
         task = asyncio.create_task(store())
         self._store_tasks.add(task)
