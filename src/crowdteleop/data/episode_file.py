@@ -1,0 +1,273 @@
+"""One finished episode as one HDF5 file: a robomimic demo (``data/demo_0``) plus our extras.
+
+Written under a temporary name, fsync'd and renamed, so a file under its final name is always
+whole; ``read_episode`` reads it back and refuses foreign or damaged files with
+``CorruptEpisodeError``. Layout: ``docs/recording.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal, get_args
+
+import h5py
+import numpy as np
+
+from crowdteleop.data.storage import fsync_directory
+from crowdteleop.errors import CrowdteleopError
+
+Outcome = Literal["success", "reset", "timeout", "disconnect", "crash"]
+OUTCOMES: tuple[str, ...] = get_args(Outcome)
+EPISODE_SUFFIX = ".hdf5"
+
+
+class RecordingError(CrowdteleopError, RuntimeError):
+    """The recorder cannot do what was asked: it is closed, or the disk refused a write."""
+
+
+class InvalidRecordError(CrowdteleopError, ValueError):
+    """A step, metadata or episode id that cannot be recorded as given (nothing was written)."""
+
+
+class CorruptEpisodeError(CrowdteleopError, ValueError):
+    """A file that is not, or no longer, a readable crowdteleop episode or write-ahead log."""
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """One control step as the teleop server saw it; ``state`` is the state before ``action``."""
+
+    index: int
+    state: np.ndarray
+    action: np.ndarray
+    command: dict[str, Any]
+    server_time: float
+    step_duration_s: float
+    reward: float
+    success: bool
+    contacts: list[dict[str, Any]]
+
+
+@dataclass(frozen=True, kw_only=True)
+class EpisodeData:
+    """Arrays of one episode, one row per step; ``metadata`` excludes the MJCF and env args."""
+
+    episode_id: str
+    metadata: dict[str, Any]
+    model_xml: str | None
+    env_args: dict[str, Any] | None
+    created_at: float
+    states: np.ndarray  # (N, S) float64
+    actions: np.ndarray  # (N, A) float64
+    rewards: np.ndarray  # (N,) float64
+    success: np.ndarray  # (N,) bool
+    server_time: np.ndarray  # (N,) float64
+    step_duration_s: np.ndarray  # (N,) float64
+    commands: list[dict[str, Any]]
+    contacts: list[list[dict[str, Any]]]
+
+    @property
+    def steps(self) -> int:
+        return len(self.rewards)
+
+
+@dataclass(frozen=True, kw_only=True)
+class PartialEpisode(EpisodeData):
+    """What a write-ahead log holds; ``ignored_tail_bytes`` > 0 when its end was torn."""
+
+    ignored_tail_bytes: int
+
+
+@dataclass(frozen=True, kw_only=True)
+class Episode(EpisodeData):
+    """A finished episode file read back."""
+
+    outcome: Outcome
+    dones: np.ndarray  # (N,) uint8, robomimic's convention: 1 on success steps and the last
+    finalized_at: float
+    recovered: bool  # finalized by recover_orphans after a crash
+
+
+def read_episode(path: Path) -> Episode:
+    """A finished episode file read back (see ``docs/recording.md`` for the layout)."""
+    return _read_episode(Path(path))
+
+
+def split_metadata(
+    metadata: dict[str, Any],
+) -> tuple[dict[str, Any], str | None, dict[str, Any] | None]:
+    """(metadata without them, model_xml, robomimic env_args with type=1 by default)."""
+    if not isinstance(metadata, dict):
+        raise InvalidRecordError(f"metadata must be a dict, got {type(metadata).__name__}")
+    rest = dict(metadata)
+    model_xml = rest.pop("model_xml", None)
+    env_args = rest.pop("env_args", None)
+    if model_xml is not None and not (isinstance(model_xml, str) and _is_utf8(model_xml)):
+        raise InvalidRecordError("metadata model_xml must be the MJCF XML string")
+    if env_args is not None:
+        if not isinstance(env_args, dict) or not isinstance(env_args.get("env_name"), str):
+            raise InvalidRecordError("metadata env_args must be a dict with an env_name string")
+        env_args = {"env_name": env_args["env_name"], "type": 1, "env_kwargs": {}} | env_args
+    return rest, model_xml, env_args
+
+
+def to_json(value: Any, what: str) -> str:
+    try:
+        return json.dumps(value, allow_nan=False, separators=(",", ":"))
+    except (TypeError, ValueError) as error:
+        raise InvalidRecordError(f"{what} is not JSON-serializable without NaN: {error}") from error
+
+
+# The finished episode file: one robomimic demo plus our extras (docs/recording.md).
+FILE_FORMAT = "crowdteleop-episode"
+FILE_FORMAT_VERSION = 1
+DEMO = "data/demo_0"
+_STR = h5py.string_dtype()
+
+
+def write_episode(
+    path: Path, partial: EpisodeData, outcome: str, extra: dict[str, Any], recovered: bool
+) -> Path:
+    """Write under a temporary name, fsync, rename: never a half file under the final name."""
+    metadata, model_xml, env_args = split_metadata({**partial.metadata, **extra})
+    model_xml = model_xml if model_xml is not None else partial.model_xml
+    env_args = env_args if env_args is not None else partial.env_args
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        _write_hdf5(tmp, partial, outcome, metadata, model_xml, env_args, recovered)
+        with open(tmp, "rb") as file:
+            os.fsync(file.fileno())
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    os.replace(tmp, path)
+    fsync_directory(path.parent)
+    return path
+
+
+def _write_hdf5(
+    tmp: Path,
+    partial: EpisodeData,
+    outcome: str,
+    metadata: dict[str, Any],
+    model_xml: str | None,
+    env_args: dict[str, Any] | None,
+    recovered: bool,
+) -> None:
+    n = partial.steps
+    dones = partial.success.astype(np.uint8)
+    if n:
+        dones[-1] = 1
+    with h5py.File(tmp, "w") as file:
+        file.attrs.update(
+            format=FILE_FORMAT,
+            format_version=FILE_FORMAT_VERSION,
+            episode_id=partial.episode_id,
+            outcome=outcome,
+            metadata=to_json(metadata, "metadata"),
+            created_at=partial.created_at,
+            finalized_at=time.time(),
+            recovered=recovered,
+        )
+        data = file.create_group("data")
+        data.attrs["total"] = n
+        if env_args is not None:
+            file.attrs["env_args"] = data.attrs["env_args"] = to_json(env_args, "env_args")
+        demo = file.create_group(DEMO)
+        demo.attrs["num_samples"] = n
+        if model_xml is not None:
+            demo.attrs["model_file"] = model_xml
+        for name in ("states", "actions", "rewards", "success", "server_time", "step_duration_s"):
+            demo.create_dataset(name, data=getattr(partial, name))
+        demo.create_dataset("dones", data=dones)
+        demo.create_dataset(
+            "contacts", data=[to_json(c, "contacts") for c in partial.contacts], dtype=_STR
+        )
+        commands = demo.create_group("commands")
+        for name, column in _command_columns(partial.commands).items():
+            commands.create_dataset(name, data=column, dtype=column.dtype)
+
+
+def _command_columns(commands: list[dict[str, Any]]) -> dict[str, np.ndarray]:
+    """The device commands as columns; a field a command lacks is NaN / -1 / False / ""."""
+    return {
+        "seq": np.array([_int(c.get("seq")) for c in commands], dtype=np.int64),
+        "client_time": np.array([_floats(c.get("t"), 1)[0] for c in commands]),
+        "position": np.array([_floats(c.get("position"), 3) for c in commands]).reshape(-1, 3),
+        "quaternion": np.array([_floats(c.get("quaternion"), 4) for c in commands]).reshape(-1, 4),
+        "engaged": np.array([c.get("engaged") is True for c in commands], dtype=bool),
+        "gripper": np.array([_floats(c.get("gripper"), 1)[0] for c in commands]),
+        "device": np.array([_text(c.get("device")) for c in commands], dtype=_STR),
+        "raw": np.array([to_json(c, "command") for c in commands], dtype=_STR),
+    }
+
+
+def _text(value: Any) -> str:
+    """A string HDF5 stores as given (UTF-8, no NUL), else ""; the raw JSON keeps the rest."""
+    return value if isinstance(value, str) and _is_utf8(value) and "\x00" not in value else ""
+
+
+def _is_utf8(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def _int(value: Any) -> int:
+    return value if isinstance(value, int) and not isinstance(value, bool) else -1
+
+
+def _floats(value: Any, n: int) -> np.ndarray:
+    try:
+        array = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        return np.full(n, np.nan)
+    return array if array.size == n else np.full(n, np.nan)
+
+
+def _read_episode(path: Path) -> Episode:
+    try:
+        file = h5py.File(path, "r")
+    except OSError as error:
+        raise CorruptEpisodeError(f"{path} is not a readable HDF5 file: {error}") from error
+    with file:
+        if file.attrs.get("format") != FILE_FORMAT:
+            raise CorruptEpisodeError(f"{path} is an HDF5 file but not a crowdteleop episode")
+        try:
+            attrs, demo = file.attrs, file[DEMO]
+            env_args = attrs.get("env_args")
+            return Episode(
+                episode_id=str(attrs["episode_id"]),
+                outcome=str(attrs["outcome"]),  # type: ignore[arg-type]
+                metadata=json.loads(attrs["metadata"]),
+                model_xml=demo.attrs.get("model_file"),
+                env_args=json.loads(env_args) if env_args is not None else None,
+                created_at=float(attrs["created_at"]),
+                finalized_at=float(attrs["finalized_at"]),
+                recovered=bool(attrs["recovered"]),
+                states=demo["states"][()],
+                actions=demo["actions"][()],
+                rewards=demo["rewards"][()],
+                dones=demo["dones"][()],
+                success=demo["success"][()],
+                server_time=demo["server_time"][()],
+                step_duration_s=demo["step_duration_s"][()],
+                commands=[json.loads(c) for c in demo["commands/raw"].asstr()[()]],
+                contacts=[json.loads(c) for c in demo["contacts"].asstr()[()]],
+            )
+        except (KeyError, ValueError, OSError) as error:
+            raise CorruptEpisodeError(f"{path} is a damaged episode file: {error}") from error
+
+
+def is_readable(path: Path) -> bool:
+    try:
+        _read_episode(path)
+    except CorruptEpisodeError:
+        return False
+    return True
