@@ -8,6 +8,8 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from crowdteleop.control.config import ControlConfig
+from crowdteleop.data.storage import EpisodeStorage
+from crowdteleop.data.stores import StorageConfig, open_storage
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.registry import get_task
 
@@ -82,11 +84,19 @@ class LimitsConfig(BaseModel):
 
 
 class RecordingConfig(BaseModel):
+    """Where episodes are recorded and stored; ``storage`` picks a local directory (default)
+    or S3 behind a local spool (``crowdteleop.data.stores``, docs/dataset.md)."""
+
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     directory: Path = Path("data/episodes")
     keep_failed: bool = Field(True, description="keep reset / timeout / disconnect episodes")
     flush_interval_s: float = Field(1.0, gt=0, le=1.0)
+    storage: StorageConfig = StorageConfig()
+
+    def open_storage(self) -> EpisodeStorage:
+        """The store episodes go to (an S3 store starts its spool's upload thread)."""
+        return open_storage(self.storage, self.directory)
 
 
 class TeleopConfig(BaseModel):

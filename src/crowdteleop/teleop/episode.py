@@ -9,7 +9,11 @@ from pathlib import Path
 from typing import Any, Literal
 
 from crowdteleop.data.recording import EpisodeRecorder, StepRecord
+from crowdteleop.data.s3 import StorageUnavailableError
+from crowdteleop.data.spool import SpooledStorage
 from crowdteleop.data.storage import EpisodeStorage
+from crowdteleop.data.stores import SavedWhen
+from crowdteleop.data.versions import runtime_versions
 
 log = logging.getLogger(__name__)
 
@@ -106,20 +110,41 @@ def store_episode(
     storage: EpisodeStorage,
     keep_failed: bool,
     extra_metadata: dict[str, Any],
+    saved_when: SavedWhen = "stored",
+    store_wait_s: float = 30.0,
 ) -> str | None:
-    """Finalize the recording and hand it to storage; returns its URI (None if discarded).
+    """Finalize the recording and hand it to storage; returns its URI once it is durable
+    (None if discarded). The server tells the worker "saved" only after this returns.
+
+    Durable means: a local store fsync'd the file; an S3 store behind a spool confirmed the
+    upload (size, MD5 and SHA-256 checked) within ``store_wait_s``, or, with
+    ``saved_when="spooled"``, the spool holds a fsync'd copy. When the store does not confirm
+    in time this raises ``StorageUnavailableError``: the episode stays spooled and is uploaded
+    when the store returns, but the worker is not told it was saved.
 
     Runs in a worker thread: writing the HDF5 file must not stall the control loop.
     """
     if finished.recorder is None:
         return None
-    path = finished.recorder.finalize(finished.outcome, extra_metadata)
+    extra = {"versions": runtime_versions(), **extra_metadata}
+    path = finished.recorder.finalize(finished.outcome, extra)
     if finished.outcome != "success" and not keep_failed:
         path.unlink(missing_ok=True)
         return None
     folder = "success" if finished.outcome == "success" else "other"
-    uri = storage.put(path, f"{folder}/{path.name}")
-    path.unlink(missing_ok=True)  # storage holds its own copy now
+    key = f"{folder}/{path.name}"
+    uri = storage.put(path, key)
+    path.unlink(missing_ok=True)  # storage (or its spool) holds its own fsync'd copy now
+    if (
+        isinstance(storage, SpooledStorage)
+        and saved_when == "stored"
+        and not storage.wait(key, store_wait_s)
+    ):
+        raise StorageUnavailableError(
+            f"episode {finished.episode_id} is spooled in {storage.directory} but the store did "
+            f"not confirm it within {store_wait_s:.0f} s ({storage.last_error or 'no answer'}); "
+            "it will be uploaded when the store is back"
+        )
     log.info(
         "episode %s (%s, %d steps) stored at %s",
         finished.episode_id,

@@ -312,10 +312,12 @@ def _classify(exc: ValidationError) -> str:
     kinds = {error["type"] for error in exc.errors()}
     if "json_invalid" in kinds or "json_type" in kinds:
         return "malformed"
-    if kinds & {"union_tag_not_found", "union_tag_invalid", "model_type"}:
-        return "unknown_type"
     if any(error["loc"][-1:] == ("v",) for error in exc.errors()):
         return "version"
+    if kinds & {"union_tag_not_found", "union_tag_invalid"} or any(
+        error["loc"] == ("type",) for error in exc.errors()
+    ):
+        return "unknown_type"
     return "invalid"
 
 

@@ -97,9 +97,11 @@ class TeleopServer:
         recovered = await asyncio.to_thread(
             recover_orphans, self.config.recording.directory / "incoming"
         )
-        for path in recovered:
-            log.warning("recovered an episode a crashed session left: %s", path)
         self.session = await TeleopSession.create(self.config)
+        for path in recovered:  # a crashed session's episode: kept for analysis, as "crash"
+            uri = await asyncio.to_thread(self.session.storage.put, path, f"other/{path.name}")
+            path.unlink(missing_ok=True)
+            log.warning("recovered an episode a crashed session left: %s", uri)
         self.dispatcher = Dispatcher(self.session, self.telemetry)
         self._loop_task = asyncio.create_task(self._run_loop(), name="control-loop")
 

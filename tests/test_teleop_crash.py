@@ -1,0 +1,55 @@
+"""`kill -9` of a teleop server mid-episode loses at most the last flush interval."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from crowdteleop.client.bot import Bot
+from crowdteleop.client.connection import TeleopClient
+from crowdteleop.data.recording import read_episode, read_partial
+from crowdteleop.sim import SimConfig, make_simulation
+from tests.teleop_process import ADMIN_TOKEN, TOKEN, run, teleop_server
+
+FLUSH_S = 0.2
+CONTROL_DT = 0.05
+
+
+def test_kill_9_mid_episode_keeps_every_step_up_to_the_last_flush(tmp_path):
+    recording = {"flush_interval_s": FLUSH_S}
+    with teleop_server(tmp_path, recording=recording) as server:
+
+        async def drive_then_kill():
+            client = TeleopClient(server.url, TOKEN, role="admin", admin_token=ADMIN_TOKEN)
+            Bot(client, seed=1)
+            await client.connect()
+            await client.wait_for(
+                lambda s: s.status is not None and s.status.elapsed_s >= 1.5, timeout=60
+            )
+            seen_steps = round(client.state.status.elapsed_s / CONTROL_DT)
+            server.kill9()
+            await client.close()
+            return seen_steps
+
+        seen_steps = run(drive_then_kill())
+        logs = sorted((server.record_dir / "incoming").glob("*.wal"))
+        assert len(logs) == 1, "the episode's write-ahead log outlives the process"
+        partial = read_partial(logs[0])
+
+    # Every step the worker saw, minus at most one flush interval (and the step in flight).
+    assert partial.steps >= seen_steps - (FLUSH_S / CONTROL_DT + 2)
+    assert partial.steps <= seen_steps + 3
+    sim = make_simulation(SimConfig(**partial.metadata["sim_config"]))
+    try:
+        sim.set_state(partial.states[0])
+        for state, action in zip(partial.states[1:], partial.actions[:-1], strict=True):
+            sim.step(action)
+            np.testing.assert_array_equal(sim.get_state(), state)
+    finally:
+        sim.close()
+
+    # The next server on the same directory files it as a crashed episode.
+    with teleop_server(tmp_path) as restarted:
+        crashed = sorted((restarted.record_dir / "other").glob("*.hdf5"))
+    assert len(crashed) == 1
+    episode = read_episode(crashed[0])
+    assert episode.outcome == "crash" and episode.steps == partial.steps

@@ -1,0 +1,177 @@
+"""The teleop server's parts that need no network: protocol, command board, clock, matching."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+
+import pytest
+
+from crowdteleop.client.latency import FrameMatcher, LatencyTracker
+from crowdteleop.teleop.clock import FixedRateClock
+from crowdteleop.teleop.commands import CommandBoard, NotInControlError
+from crowdteleop.teleop.config import TeleopConfig, VideoConfig
+from crowdteleop.teleop.guard import InboundGuard
+from crowdteleop.teleop.protocol import (
+    ClutchEvent,
+    PoseCommand,
+    ProtocolError,
+    json_schema,
+    parse_inbound,
+)
+
+POSE = {
+    "v": 1,
+    "type": "pose",
+    "seq": 1,
+    "t": 1.0,
+    "device": "phone",
+    "position": [0.0, 0.1, 0.0],
+    "quaternion": [0.0, 0.0, 0.0, 1.0],
+    "engaged": True,
+    "gripper": False,
+}
+
+
+def _code(channel: str, raw: str | bytes, max_bytes: int = 4096) -> str:
+    with pytest.raises(ProtocolError) as caught:
+        parse_inbound(channel, raw, max_bytes)
+    return caught.value.code
+
+
+def test_a_valid_pose_parses():
+    message = parse_inbound("control", json.dumps(POSE), 4096)
+    assert isinstance(message, PoseCommand) and message.position == (0.0, 0.1, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("raw", "code"),
+    [
+        ("{", "malformed"),
+        (b"\xff\xfe", "malformed"),
+        ("[1, 2]", "invalid"),
+        (json.dumps({**POSE, "v": 2}), "version"),
+        (json.dumps({**POSE, "type": "teleport"}), "unknown_type"),
+        (json.dumps({**POSE, "spare": 1}), "invalid"),
+        (json.dumps({**POSE, "engaged": 1}), "invalid"),
+        (json.dumps({**POSE, "seq": "1"}), "invalid"),
+        (json.dumps({**POSE, "seq": -1}), "invalid"),
+        (json.dumps({**POSE, "position": [float("nan"), 0, 0]}), "invalid"),
+        (json.dumps({**POSE, "position": [float("inf"), 0, 0]}), "invalid"),
+        (json.dumps({**POSE, "position": [50.0, 0, 0]}), "invalid"),
+        (json.dumps({**POSE, "quaternion": [0, 0, 0, 0]}), "invalid"),
+        (json.dumps({**POSE, "device": "toaster"}), "invalid"),
+        (json.dumps({k: v for k, v in POSE.items() if k != "seq"}), "invalid"),
+    ],
+)
+def test_bad_pose_messages_are_rejected_with_a_code(raw, code):
+    assert _code("control", raw) == code
+
+
+def test_oversized_messages_and_foreign_channels_are_rejected():
+    assert _code("control", json.dumps(POSE), max_bytes=64) == "too_large"
+    assert _code("admin", json.dumps(POSE)) == "channel"
+
+
+def test_events_channel_takes_events_not_poses():
+    assert _code("events", json.dumps(POSE)) == "unknown_type"
+    clutch = {"v": 1, "type": "clutch", "seq": 2, "t": 0, "device": "phone", "engaged": False}
+    assert isinstance(parse_inbound("events", json.dumps(clutch), 4096), ClutchEvent)
+
+
+def test_the_schema_covers_every_channel():
+    schema = json_schema()
+    assert set(schema["channels"]) == {"control", "events", "server"}
+    assert schema["version"] == 1
+
+
+def test_the_guard_counts_refusals_and_limits_floods():
+    guard = InboundGuard(max_bytes=4096, rate=5, burst=3)
+    accepted = 0
+    for _ in range(10):
+        try:
+            guard.admit("control", json.dumps(POSE))
+            accepted += 1
+        except ProtocolError:
+            pass
+    assert accepted == 3
+    assert guard.errors["rate_limited"] == 7
+
+
+def _pose(seq: int, device: str = "phone", engaged: bool = True) -> PoseCommand:
+    return PoseCommand.model_validate_json(
+        json.dumps({**POSE, "seq": seq, "device": device, "engaged": engaged})
+    )
+
+
+def test_latest_pose_wins_and_stale_ones_are_dropped():
+    board = CommandBoard()
+    assert board.apply_pose("p1", _pose(5))
+    assert not board.apply_pose("p1", _pose(3)), "an older pose arriving late is stale"
+    assert board.command().seq == 5
+
+
+def test_a_late_pose_cannot_undo_a_newer_clutch_release():
+    board = CommandBoard()
+    board.apply_pose("p1", _pose(1))
+    release = ClutchEvent(seq=3, t=0.0, device="phone", engaged=False)
+    board.apply_event("p1", release)
+    board.apply_pose("p1", _pose(2, engaged=True))
+    assert not board.command().engaged
+
+
+def test_only_the_controlling_device_drives_until_it_hands_over():
+    board = CommandBoard()
+    board.apply_pose("browser", _pose(1, device="keyboard"))
+    with pytest.raises(NotInControlError):
+        board.apply_pose("phone", _pose(1, device="phone"))
+    assert board.take_control("phone", "phone")
+    assert not board.command().engaged, "a new device starts with the clutch released"
+    assert board.apply_pose("phone", _pose(1, device="phone"))
+    assert board.release("phone") and board.controller is None
+
+
+def test_the_clock_keeps_its_rate_and_skips_rather_than_bursts():
+    async def run():
+        clock = FixedRateClock(50.0)
+        started = time.monotonic()
+        for tick in range(10):
+            due = await clock.wait_next()
+            if tick == 3:
+                await asyncio.sleep(0.07)  # a long tick: 3.5 periods
+            clock.finished(due)
+        return clock.stats, time.monotonic() - started
+
+    stats, elapsed = asyncio.run(run())
+    assert stats.overruns == 1
+    assert stats.skipped >= 2
+    assert elapsed == pytest.approx(0.02 * (9 + stats.skipped), abs=0.03)
+
+
+def test_frames_are_matched_to_commands_despite_an_unknown_rtp_offset():
+    matcher = FrameMatcher()
+    pts_values = [0, 4493, 9012, 13467, 18020, 22475]
+    for seq, pts in enumerate(pts_values, start=10):
+        matcher.add_tag(pts, seq)
+    offset = 123_456_789
+    seen = [matcher.command_seq_of(pts + offset) for pts in pts_values]
+    assert seen[:2] == [None, None], "two frames cannot fix the offset"
+    assert seen[2:] == [12, 13, 14, 15]
+
+
+def test_latency_counts_each_command_once_from_its_first_frame():
+    tracker = LatencyTracker()
+    for seq in (1, 2, 3):
+        tracker.command_sent(seq, 10.0 + seq * 0.01)
+    assert tracker.frame_shown(2, 10.10) == pytest.approx([90.0, 80.0])
+    assert tracker.frame_shown(2, 10.20) == []
+    assert tracker.frame_shown(3, 10.25) == pytest.approx([220.0])
+
+
+def test_configs_refuse_what_aiortc_would_clamp_or_the_sim_could_not_run():
+    with pytest.raises(ValueError, match="bitrates"):
+        VideoConfig(codec="h264", min_bitrate_bps=250_000)
+    with pytest.raises(ValueError, match="action mode"):
+        TeleopConfig.model_validate({"control": {"controller": "osc"}})
+    assert TeleopConfig.for_controller("osc").sim.action_mode == "osc-pose"
