@@ -19,6 +19,10 @@ fi
 "$venv/bin/python" -m pip install --quiet --upgrade pip
 # torch is not needed yet; when it is, pin torch==2.13.0 (the CPU build on this machine's disk).
 "$venv/bin/python" -m pip install --quiet -e ".[dev]"
+# robomimic's dataset loader (the dataset tests load our HDF5 with it). Without its declared
+# dependencies: they pin torchvision (fails to import beside torch 2.13) and egl_probe (needs
+# cmake); what its loader imports (torch, h5py, tqdm, termcolor) is in pyproject's dev list.
+"$venv/bin/python" -m pip install --quiet --no-deps "robomimic==0.3.0"
 
 # robosuite warns on every import until a private macro file exists; create it once, quietly.
 robosuite_dir=$("$venv/bin/python" -c "import importlib.util as u; print(u.find_spec('robosuite').submodule_search_locations[0])")

@@ -1,7 +1,8 @@
 """Where finished episodes go: a storage interface, and a local directory that implements it.
 
 Keys are S3-style relative paths (``lift/2024-05-01/ep-42.hdf5``); ``put`` returns a URI that
-``get`` accepts. The dataset issue adds durable object storage behind the same interface.
+``get`` accepts. ``crowdteleop.data.s3`` puts S3-compatible object storage behind the same
+interface and ``crowdteleop.data.spool`` a local spool in front of it.
 """
 
 from __future__ import annotations
@@ -126,15 +127,7 @@ class LocalDirectoryStorage:
         return target.as_uri()
 
     def _path(self, key: str) -> Path:
-        if not isinstance(key, str) or not key or len(key) > MAX_KEY_LENGTH:
-            raise InvalidKeyError(f"key must be 1-{MAX_KEY_LENGTH} characters, got {key!r}")
-        parts = key.split("/")
-        if "\\" in key or "\x00" in key or any(not p or p.startswith(".") for p in parts):
-            raise InvalidKeyError(
-                f"bad key {key!r}: a relative path of '/'-separated names, none empty or "
-                "starting with '.' (hidden names are the store's temporary files)"
-            )
-        return self.root.joinpath(*parts)
+        return self.root.joinpath(*validate_key(key).split("/"))
 
     def _path_of_uri(self, uri: str) -> Path:
         parsed = urlparse(uri)
@@ -146,6 +139,19 @@ class LocalDirectoryStorage:
         except ValueError as error:
             raise InvalidKeyError(f"{uri!r} is outside this store ({self.root})") from error
         return self._path(key)
+
+
+def validate_key(key: str) -> str:
+    """``key`` if it is a relative path of '/'-separated names, else ``InvalidKeyError``."""
+    if not isinstance(key, str) or not key or len(key) > MAX_KEY_LENGTH:
+        raise InvalidKeyError(f"key must be 1-{MAX_KEY_LENGTH} characters, got {key!r}")
+    parts = key.split("/")
+    if "\\" in key or "\x00" in key or any(not p or p.startswith(".") for p in parts):
+        raise InvalidKeyError(
+            f"bad key {key!r}: a relative path of '/'-separated names, none empty or "
+            "starting with '.' (hidden names are the store's temporary files)"
+        )
+    return key
 
 
 def file_sha256(path: Path) -> str:

@@ -1,0 +1,131 @@
+"""Episodes recorded from scripted operators, step by step as the teleop server records them.
+
+The platform's test users: each episode goes through the full control path (scripted operator
+-> Teleoperator -> Simulation) and every control step through ``EpisodeRecorder`` with the
+metadata ``crowdteleop.teleop.session`` writes, so tests and benchmarks exercise the very files
+workers produce.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from crowdteleop.data.episode_file import Outcome
+from crowdteleop.data.versions import runtime_versions
+from crowdteleop.data.wal import EpisodeRecorder, StepRecord
+
+
+@dataclass(frozen=True)
+class ScriptedEpisode:
+    path: Path | None  # None when not finalized: ``recorder`` then waits for it
+    recorder: EpisodeRecorder
+    outcome: Outcome
+    steps: int
+    step_seconds: float  # wall time of the control steps alone (for overhead figures)
+    record_seconds: float  # wall time of the appends alone
+
+
+@contextmanager
+def scripted_rig(
+    task: str = "lift", controller: str = "ik-velocity", model_seed: int = 0
+) -> Iterator[Any]:
+    """(sim, teleop, operator factory, metadata) for one task; closes the simulation."""
+    from crowdteleop.control import ControlConfig, Teleoperator
+    from crowdteleop.sim import SimConfig, make_simulation
+    from crowdteleop.sim.registry import get_task
+
+    control = ControlConfig(controller=controller)
+    config = SimConfig(task=task, action_mode=control.action_mode, model_seed=model_seed)
+    sim = make_simulation(config)
+    try:
+        spec = get_task(task)
+        metadata = {
+            "task": task,
+            "robot": config.robot,
+            "controller": controller,
+            "action_mode": config.action_mode,
+            "control_hz": config.control_hz,
+            "camera": "frontview",
+            "sim_config": config.model_dump(mode="json"),
+            "control_config": control.model_dump(mode="json"),
+            "model_xml": sim.mjcf_xml(),
+            "env_args": {
+                "env_name": spec.env_name,
+                "type": 1,
+                "env_kwargs": {"robots": [config.robot], **spec.env_kwargs},
+            },
+        }
+        yield sim, Teleoperator(sim, control), control, metadata
+    finally:
+        sim.close()
+
+
+def record_scripted_episode(
+    rig: Any,
+    directory: Path,
+    episode_id: str,
+    seed: int,
+    extra_metadata: dict[str, Any] | None = None,
+    time_limit_s: float | None = None,
+    finalize: bool = True,
+) -> ScriptedEpisode:
+    """One scripted episode recorded into ``directory/<episode_id>.hdf5``; with ``finalize``
+    False the recorder is left open, as the teleop server hands it to ``store_episode``."""
+    from crowdteleop.control.scripted import ScriptedOperator, run_episode
+    from crowdteleop.control.teleoperator import TeleopStep
+
+    sim, teleop, control, metadata = rig
+    extra = dict(extra_metadata or {})
+    recorder = EpisodeRecorder(directory, episode_id, metadata)
+    operator = ScriptedOperator(sim, control.mapping, seed=seed)
+    step_once = teleop.step
+    timing = {"step": 0.0, "record": 0.0}
+
+    def recorded_step(command: Any) -> TeleopStep:
+        state = sim.get_state()
+        started_wall, started = time.time(), time.perf_counter()
+        step = step_once(command)
+        duration = time.perf_counter() - started
+        timing["step"] += duration
+        record_start = time.perf_counter()
+        recorder.append(
+            StepRecord(
+                index=recorder.steps,
+                state=state,
+                action=np.asarray(step.action, dtype=float),
+                command={
+                    "seq": recorder.steps,
+                    "t": started_wall,
+                    "engaged": bool(command.engaged),
+                    "position": np.asarray(command.position).tolist(),
+                    "quaternion": np.asarray(command.quaternion).tolist(),
+                    "gripper": float(command.gripper_closed),
+                    "device": str(extra.get("interface", "scripted")),
+                },
+                server_time=started_wall,
+                step_duration_s=duration,
+                reward=float(step.result.reward),
+                success=bool(step.result.success),
+                contacts=[vars(c) for c in step.result.contacts],
+            )
+        )
+        timing["record"] += time.perf_counter() - record_start
+        return step
+
+    teleop.step = recorded_step  # type: ignore[method-assign]
+    try:
+        result = run_episode(teleop, operator, seed, time_limit_s=time_limit_s)
+    finally:
+        teleop.step = step_once  # type: ignore[method-assign]
+    outcome: Outcome = "success" if result.success else "timeout"
+    path = (
+        recorder.finalize(outcome, {"versions": runtime_versions(), **extra}) if finalize else None
+    )
+    return ScriptedEpisode(path, recorder, outcome, result.steps, timing["step"], timing["record"])
