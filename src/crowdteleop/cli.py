@@ -193,3 +193,8 @@ def _action_mode(controller: str) -> str:
     if controller not in ACTION_MODE_FOR_CONTROLLER:
         raise ValueError(f"unknown controller {controller!r}")
     return ACTION_MODE_FOR_CONTROLLER[controller]
+
+
+from crowdteleop.coord.cli import serve as _serve  # noqa: E402  (registered last, see coord/cli.py)
+
+app.command("serve")(_serve)

@@ -1,0 +1,26 @@
+"""What teleop servers tell the coordinator: each stored episode (bearer = report token)."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from crowdteleop.coord.deps import CoordinatorDep, Credentials, token_of
+from crowdteleop.coord.errors import ApiError
+from crowdteleop.coord.schemas import EpisodeAck, EpisodeReport, ErrorBody
+
+ERRORS = {code: {"model": ErrorBody} for code in (401, 403, 422)}
+router = APIRouter(prefix="/internal", tags=["internal"], responses=ERRORS)
+
+
+@router.post("/episodes", response_model=EpisodeAck)
+async def episode_report(
+    report: EpisodeReport, coordinator: CoordinatorDep, credentials: Credentials
+) -> EpisodeAck:
+    """Idempotent by episode_id; successes count toward the session's demos_required."""
+    token = token_of(credentials)
+    session = await coordinator.store.session_by_report_token(token) if token else None
+    if session is None:
+        raise ApiError(401, "unauthorized", "a session's report token is required")
+    if report.session_id != session.id:
+        raise ApiError(403, "wrong_session", "this token reports for another session")
+    return await coordinator.report_episode(session, report)

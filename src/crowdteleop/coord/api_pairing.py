@@ -1,0 +1,89 @@
+"""Pairing a phone with a worker's session through a short code (or the QR code's URL)."""
+
+from __future__ import annotations
+
+import time
+
+from fastapi import APIRouter, Request
+
+from crowdteleop.coord.deps import CoordinatorDep, OwnedSession, PhoneSession
+from crowdteleop.coord.errors import ApiError
+from crowdteleop.coord.schemas import (
+    AnswerBody,
+    ErrorBody,
+    OfferBody,
+    PairingView,
+    PairRequest,
+    PairResponse,
+    PhoneSessionView,
+)
+from crowdteleop.coord.security import new_pairing_code, normalize_pairing_code
+from crowdteleop.coord.teleop_proxy import forward_offer
+
+ERRORS = {code: {"model": ErrorBody} for code in (401, 404, 409, 422, 429)}
+router = APIRouter(prefix="/api", tags=["phone"], responses=ERRORS)
+
+
+@router.post("/sessions/{session_id}/pairing", response_model=PairingView)
+async def new_pairing(session: OwnedSession, coordinator: CoordinatorDep) -> PairingView:
+    """A fresh single-use code for this session's phone; earlier codes stay valid until used
+    or expired."""
+    if session.state == "ended":
+        raise ApiError(409, "ended", "the session has ended")
+    ttl = coordinator.config.pairing_ttl_s
+    for _ in range(20):
+        code = new_pairing_code()
+        if await coordinator.store.add_pairing_code(session.id, code, time.time() + ttl):
+            break
+    else:
+        raise ApiError(409, "busy", "could not draw a free code; try again")
+    base = coordinator.config.public_url.rstrip("/")
+    return PairingView(code=code, expires_s=ttl, phone_url=f"{base}/phone?code={code}")
+
+
+@router.post("/pair", response_model=PairResponse)
+async def pair(body: PairRequest, request: Request, coordinator: CoordinatorDep) -> PairResponse:
+    """Trade a code for a phone token. Wrong, expired or used codes: 404; too many wrong
+    guesses from one address: 429."""
+    limiter = request.app.state.pair_limiter
+    client = request.client.host if request.client else "unknown"
+    wait = limiter.blocked(client)
+    if wait > 0:
+        raise ApiError(
+            429,
+            "rate_limited",
+            f"too many wrong codes; try again in {wait:.0f} s",
+            headers={"Retry-After": str(max(1, round(wait)))},
+        )
+    redeemed = await coordinator.store.redeem_pairing_code(
+        normalize_pairing_code(body.code), time.time()
+    )
+    if redeemed is None:
+        limiter.failed(client)
+        raise ApiError(404, "bad_code", "that code is wrong, expired or already used")
+    session_id, token = redeemed
+    session = await coordinator.store.session(session_id)
+    if session is None or session.state == "ended":
+        raise ApiError(404, "bad_code", "that code's session has ended")
+    return PairResponse(phone_token=token, session_id=session_id)
+
+
+@router.get("/phone/session", response_model=PhoneSessionView)
+async def phone_session(session: PhoneSession, coordinator: CoordinatorDep) -> PhoneSessionView:
+    """What the phone page shows: the task and whether the robot is ready."""
+    from crowdteleop.sim.registry import get_task
+
+    return PhoneSessionView(
+        session_id=session.id,
+        state=session.state,  # type: ignore[arg-type]
+        task=session.task,
+        instruction=get_task(session.task).instruction,
+        ended_reason=session.ended_reason,  # type: ignore[arg-type]
+        ice_servers=list(coordinator.config.ice_servers),
+    )
+
+
+@router.post("/phone/offer", response_model=AnswerBody)
+async def phone_offer(body: OfferBody, session: PhoneSession, request: Request) -> AnswerBody:
+    """WebRTC offer from the paired phone (role phone: data channels only, no video)."""
+    return await forward_offer(request.app.state.http, session, body, "phone")

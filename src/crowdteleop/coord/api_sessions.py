@@ -1,0 +1,133 @@
+"""Workers: join, get a session, keep it alive, leave, and signal WebRTC to its server."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Body, Query, Request
+
+from crowdteleop.coord.campaign import CampaignConfig
+from crowdteleop.coord.deps import (
+    CoordinatorDep,
+    OwnedSession,
+    SessionId,
+    WorkerDep,
+    owned,
+    token_of,
+    worker_for,
+)
+from crowdteleop.coord.deps import Credentials as CredentialsDep
+from crowdteleop.coord.errors import ApiError
+from crowdteleop.coord.identity import identify
+from crowdteleop.coord.schemas import (
+    AnswerBody,
+    CampaignView,
+    ErrorBody,
+    HeartbeatRequest,
+    JoinRequest,
+    JoinResponse,
+    OfferBody,
+    SessionView,
+)
+from crowdteleop.coord.teleop_proxy import forward_offer
+
+ERRORS = {code: {"model": ErrorBody} for code in (401, 404, 409, 422)}
+router = APIRouter(prefix="/api", tags=["workers"], responses=ERRORS)
+
+
+def campaign_view(campaign: CampaignConfig) -> CampaignView:
+    return CampaignView(
+        name=campaign.name,
+        title=campaign.title,
+        instructions=campaign.instructions,
+        tasks=campaign.tasks,
+        interfaces=campaign.interfaces,
+        demos_required=campaign.demos_required,
+        time_limit_s=campaign.time_limit_s,
+    )
+
+
+@router.post("/join", response_model=JoinResponse)
+async def join(body: JoinRequest, coordinator: CoordinatorDep) -> JoinResponse:
+    """Register (or recognise) the worker a join link names; returns their bearer token."""
+    campaign = coordinator.config.campaign(body.campaign)
+    if campaign is None:
+        raise ApiError(404, "unknown_campaign", f"no campaign named {body.campaign!r}")
+    who = identify(body.params)
+    worker, token, _created = await coordinator.store.join(
+        campaign.name,
+        who.source,
+        who.external_id,
+        who.study_id,
+        who.external_session,
+        body.params,
+    )
+    return JoinResponse(
+        worker_id=worker.id,
+        worker_token=token,
+        source=who.source,  # type: ignore[arg-type]
+        campaign=campaign_view(campaign),
+    )
+
+
+@router.post("/sessions", response_model=SessionView)
+async def create_session(worker: WorkerDep, coordinator: CoordinatorDep) -> SessionView:
+    """The worker's live session, or a new one: ready soon, or queued when the pool is full."""
+    campaign = coordinator.config.campaign(worker.campaign) or coordinator.config.default_campaign
+    session = await coordinator.create_session(worker, campaign)
+    return await coordinator.view(session, worker)
+
+
+@router.get("/sessions/{session_id}", response_model=SessionView)
+async def get_session(
+    session: OwnedSession, worker: WorkerDep, coordinator: CoordinatorDep
+) -> SessionView:
+    return await coordinator.view(session, worker)
+
+
+@router.post("/sessions/{session_id}/heartbeat", response_model=SessionView)
+async def heartbeat(
+    session: OwnedSession,
+    worker: WorkerDep,
+    coordinator: CoordinatorDep,
+    body: Annotated[HeartbeatRequest | None, Body()] = None,
+) -> SessionView:
+    """Keeps the session (or its place in the queue); silence ends it as abandoned."""
+    await coordinator.heartbeat(session, body.interface if body else None)
+    refreshed = await coordinator.store.session(session.id) or session
+    return await coordinator.view(refreshed, worker)
+
+
+@router.post("/sessions/{session_id}/leave", response_model=SessionView)
+async def leave(
+    session_id: SessionId,
+    coordinator: CoordinatorDep,
+    credentials: CredentialsDep,
+    token: Annotated[
+        str | None, Query(max_length=512, description="for sendBeacon, which sets no headers")
+    ] = None,
+) -> SessionView:
+    """End the session now and free its slot (the page calls this on pagehide)."""
+    worker = await worker_for(coordinator, token_of(credentials) or token)
+    session = await owned(coordinator, session_id, worker)
+    return await _end(coordinator, session.id, worker)
+
+
+@router.delete("/sessions/{session_id}", response_model=SessionView)
+async def delete_session(
+    session: OwnedSession, worker: WorkerDep, coordinator: CoordinatorDep
+) -> SessionView:
+    return await _end(coordinator, session.id, worker)
+
+
+async def _end(coordinator: CoordinatorDep, session_id: str, worker: WorkerDep) -> SessionView:
+    await coordinator.end(session_id, "left")
+    session = await coordinator.store.session(session_id)
+    assert session is not None
+    return await coordinator.view(session, worker)
+
+
+@router.post("/sessions/{session_id}/offer", response_model=AnswerBody)
+async def offer(body: OfferBody, session: OwnedSession, request: Request) -> AnswerBody:
+    """WebRTC offer for the session's teleop server (role worker); 409 until it is ready."""
+    return await forward_offer(request.app.state.http, session, body, "worker")

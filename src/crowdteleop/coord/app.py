@@ -1,0 +1,75 @@
+"""The coordination server as an ASGI app: `create_app(config)` and serve it with uvicorn."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import AsyncIterator
+from typing import Any
+
+import aiohttp
+from fastapi import FastAPI, Request
+from fastapi.staticfiles import StaticFiles
+
+from crowdteleop.coord import api_admin, api_internal, api_pairing, api_sessions, pages
+from crowdteleop.coord.config import CoordConfig
+from crowdteleop.coord.db import make_engine, migrate
+from crowdteleop.coord.errors import BodyLimitMiddleware, install_error_handlers
+from crowdteleop.coord.launcher import Launcher, LocalProcessLauncher
+from crowdteleop.coord.reaper import run_reaper
+from crowdteleop.coord.security import FailureLimiter
+from crowdteleop.coord.service import Coordinator
+from crowdteleop.coord.store import Store
+
+log = logging.getLogger(__name__)
+
+
+def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI:
+    """Everything server-wide lives on `app.state`, built and torn down by the lifespan."""
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        await migrate(config.database_url)
+        store = Store(make_engine(config.database_url))
+        chosen = launcher or LocalProcessLauncher(
+            config.data_dir / "sessions", start_timeout_s=config.teleop_start_timeout_s
+        )
+        coordinator = Coordinator(config, store, chosen)
+        await coordinator.start()
+        app.state.coordinator = coordinator
+        app.state.pair_limiter = FailureLimiter(config.pair_failures_per_minute, 60.0)
+        app.state.http = aiohttp.ClientSession()
+        reaper = asyncio.create_task(run_reaper(coordinator), name="reaper")
+        try:
+            yield
+        finally:
+            reaper.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await reaper
+            await coordinator.close()
+            await app.state.http.close()
+            await store.close()
+
+    app = FastAPI(
+        title="crowdteleop coordination server",
+        version="1",
+        description="Workers join, queue for a dedicated teleop server, pair a phone, and "
+        "teleoperate; see docs/coordination.md.",
+        lifespan=lifespan,
+    )
+    app.add_middleware(BodyLimitMiddleware, max_bytes=config.max_body_bytes)
+    install_error_handlers(app)
+    app.include_router(api_sessions.router)
+    app.include_router(api_pairing.router)
+    app.include_router(api_admin.router)
+    app.include_router(api_internal.router)
+    app.include_router(pages.router)
+    app.mount("/static", StaticFiles(directory=pages.STATIC, check_dir=False), name="static")
+
+    @app.get("/health", tags=["server"])
+    async def health(request: Request) -> dict[str, Any]:
+        coordinator: Coordinator = request.app.state.coordinator
+        return {"status": "ok", "capacity": config.capacity, "busy": len(coordinator.pool.slots)}
+
+    return app

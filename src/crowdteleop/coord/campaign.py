@@ -1,0 +1,82 @@
+"""What a campaign asks of its workers: tasks, arms, controllers, interfaces, how many demos."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+Interface = Literal["phone", "keyboard", "vr", "spacemouse", "gamepad"]
+INTERFACES: tuple[Interface, ...] = ("phone", "keyboard", "vr", "spacemouse", "gamepad")
+Controller = Literal["ik-velocity", "osc"]
+NAME_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
+
+
+class CampaignConfig(BaseModel):
+    """One data-collection campaign; sessions are assigned round-robin over its lists."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = Field("default", pattern=NAME_PATTERN)
+    title: str = Field("Teach a robot arm", max_length=200)
+    instructions: str = Field(
+        "Move the robot arm with your phone (or the keyboard) and complete the task shown. "
+        "Hold the clutch button to move, release it to reposition your hand.",
+        max_length=10_000,
+    )
+    tasks: list[str] = Field(default_factory=lambda: ["lift"], min_length=1)
+    robots: list[str] = Field(default_factory=lambda: ["Sawyer"], min_length=1)
+    controllers: list[Controller] = Field(default_factory=lambda: ["ik-velocity"], min_length=1)
+    interfaces: list[Interface] = Field(default_factory=lambda: list(INTERFACES), min_length=1)
+    demos_required: int = Field(3, ge=1, le=1000)
+    time_limit_s: float = Field(1800.0, gt=0, le=24 * 3600, description="per session")
+    capacity: int | None = Field(
+        None, ge=1, description="unused here: the server-wide capacity applies (CoordConfig)"
+    )
+    prolific_completion_code: str | None = Field(
+        None,
+        pattern=r"^[A-Za-z0-9]{4,32}$",
+        description="the study's code on Prolific; a random code per session when unset",
+    )
+
+    @field_validator("tasks")
+    @classmethod
+    def _known_tasks(cls, tasks: list[str]) -> list[str]:
+        from crowdteleop.sim.registry import TASKS
+
+        unknown = [task for task in tasks if task not in TASKS]
+        if unknown:
+            raise ValueError(f"unknown task(s) {unknown}; known: {sorted(TASKS)}")
+        return tasks
+
+    def assignment(self, index: int) -> tuple[str, str, str]:
+        """(task, robot, controller) for the campaign's `index`-th session."""
+        return (
+            self.tasks[index % len(self.tasks)],
+            self.robots[index % len(self.robots)],
+            self.controllers[index % len(self.controllers)],
+        )
+
+
+def read_structured(path: Path) -> Any:
+    """JSON or YAML, by extension (YAML is a superset of JSON, so anything else is YAML)."""
+    text = path.read_text()
+    if path.suffix == ".json":
+        return json.loads(text)
+    return yaml.safe_load(text)
+
+
+def load_campaigns(path: Path) -> list[CampaignConfig]:
+    """A file holding one campaign (a mapping) or several (a list, or {campaigns: [...]})."""
+    data = read_structured(path)
+    if isinstance(data, dict) and "campaigns" in data:
+        data = data["campaigns"]
+    items = data if isinstance(data, list) else [data]
+    campaigns = [CampaignConfig.model_validate(item) for item in items]
+    names = [c.name for c in campaigns]
+    if len(set(names)) != len(names):
+        raise ValueError(f"campaign names must be unique, got {names}")
+    return campaigns

@@ -1,0 +1,152 @@
+"""How a teleop server comes to life for one session. The coordinator only knows `Launcher`;
+`LocalProcessLauncher` runs each session as a child process on this machine (the paper's one
+process per worker); a cluster backend implements the same three calls."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import ctypes
+import logging
+import os
+import signal
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+from crowdteleop.teleop.config import TeleopConfig
+
+log = logging.getLogger(__name__)
+
+
+class LaunchError(RuntimeError):
+    """A teleop server did not come up; the message carries the end of its log."""
+
+
+@runtime_checkable
+class TeleopHandle(Protocol):
+    url: str
+
+
+class Launcher(Protocol):
+    async def start(self, config: TeleopConfig) -> TeleopHandle:
+        """Start a server for `config` and return once it accepts offers."""
+        ...
+
+    async def stop(self, handle: TeleopHandle) -> None:
+        """Stop it and wait until it is gone (idempotent)."""
+        ...
+
+    def alive(self, handle: TeleopHandle) -> bool: ...
+
+
+@dataclass
+class LocalHandle:
+    url: str
+    process: asyncio.subprocess.Process
+    log_path: Path
+    drain: asyncio.Task[None] | None = field(default=None, repr=False)
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+
+def _die_with_parent() -> None:
+    """In the child, before exec: SIGTERM when the coordinator dies, even by SIGKILL."""
+    with contextlib.suppress(Exception):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
+class LocalProcessLauncher:
+    """`python -m crowdteleop teleop-server --config FILE --port 0`, awaiting its READY line."""
+
+    def __init__(
+        self,
+        work_dir: Path,
+        start_timeout_s: float = 120.0,
+        stop_timeout_s: float = 15.0,
+        python: str = sys.executable,
+    ) -> None:
+        self.work_dir = work_dir
+        self.start_timeout_s = start_timeout_s
+        self.stop_timeout_s = stop_timeout_s
+        self.python = python
+
+    async def start(self, config: TeleopConfig) -> LocalHandle:
+        folder = self.work_dir / config.session_id
+        folder.mkdir(parents=True, exist_ok=True)
+        config_path = folder / "teleop.json"
+        config_path.write_text(config.model_dump_json(indent=2))
+        config_path.chmod(0o600)  # it holds the session's tokens
+        log_path = folder / "teleop.log"
+        with log_path.open("ab") as log_file:
+            process = await asyncio.create_subprocess_exec(
+                self.python,
+                "-m",
+                "crowdteleop",
+                "teleop-server",
+                "--config",
+                str(config_path),
+                "--port",
+                "0",
+                stdin=asyncio.subprocess.DEVNULL,
+                stdout=asyncio.subprocess.PIPE,
+                stderr=log_file,
+                preexec_fn=_die_with_parent if sys.platform == "linux" else None,
+                env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            )
+        handle = LocalHandle("", process, log_path)
+        try:
+            handle.url = await asyncio.wait_for(self._ready(process), self.start_timeout_s)
+        except (TimeoutError, LaunchError, asyncio.CancelledError) as exc:
+            await self.stop(handle)
+            if isinstance(exc, asyncio.CancelledError):
+                raise
+            tail = log_path.read_text(errors="replace")[-2000:]
+            raise LaunchError(
+                f"teleop server for {config.session_id} did not start: {tail}"
+            ) from exc
+        handle.drain = asyncio.create_task(self._drain(process), name=f"drain-{process.pid}")
+        log.info("teleop server %s for %s at %s", process.pid, config.session_id, handle.url)
+        return handle
+
+    @staticmethod
+    async def _ready(process: asyncio.subprocess.Process) -> str:
+        assert process.stdout is not None
+        while True:
+            line = (await process.stdout.readline()).decode(errors="replace")
+            if not line:
+                raise LaunchError(f"exited with {await process.wait()} before READY")
+            if line.startswith("READY "):
+                return line.split()[1]
+
+    @staticmethod
+    async def _drain(process: asyncio.subprocess.Process) -> None:
+        """Keep reading stdout so a chatty child never blocks on a full pipe."""
+        assert process.stdout is not None
+        while await process.stdout.read(65536):
+            pass
+
+    async def stop(self, handle: TeleopHandle) -> None:
+        assert isinstance(handle, LocalHandle)
+        process = handle.process
+        if process.returncode is None:
+            with contextlib.suppress(ProcessLookupError):
+                process.send_signal(signal.SIGINT)  # the server finishes its recordings
+            try:
+                await asyncio.wait_for(process.wait(), self.stop_timeout_s)
+            except TimeoutError:
+                log.warning("teleop server %s ignored SIGINT; killing it", process.pid)
+                with contextlib.suppress(ProcessLookupError):
+                    process.kill()
+                await process.wait()
+        if handle.drain is not None:
+            handle.drain.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await handle.drain
+
+    def alive(self, handle: TeleopHandle) -> bool:
+        assert isinstance(handle, LocalHandle)
+        return handle.process.returncode is None

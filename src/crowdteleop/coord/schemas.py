@@ -1,0 +1,203 @@
+"""Pydantic models of every request and response body of the HTTP API."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from crowdteleop.coord.campaign import Interface
+
+SessionState = Literal["queued", "starting", "ready", "ended"]
+EndedReason = Literal["left", "timeout", "abandoned", "completed", "error"]
+MAX_SDP = 64 * 1024
+ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ErrorBody(BaseModel):
+    error: str = Field(description="machine-readable code, e.g. not_found")
+    message: str
+
+
+class JoinRequest(Strict):
+    params: dict[str, str] = Field(
+        default_factory=dict, description="the join link's query-string parameters"
+    )
+    campaign: str | None = Field(None, max_length=64)
+
+    @field_validator("params")
+    @classmethod
+    def _bounded(cls, params: dict[str, str]) -> dict[str, str]:
+        if len(params) > 32:
+            raise ValueError("at most 32 parameters")
+        for key, value in params.items():
+            if len(key) > 64 or len(value) > 256:
+                raise ValueError("parameter names are at most 64 characters, values 256")
+        return params
+
+
+class CampaignView(BaseModel):
+    name: str
+    title: str
+    instructions: str
+    tasks: list[str]
+    interfaces: list[Interface]
+    demos_required: int
+    time_limit_s: float
+
+
+class JoinResponse(BaseModel):
+    worker_id: str
+    worker_token: str
+    source: Literal["prolific", "mturk", "anonymous"]
+    campaign: CampaignView
+
+
+class SessionView(BaseModel):
+    session_id: str
+    state: SessionState
+    queue_position: int | None = Field(description="1-based; null unless queued")
+    eta_s: float | None = Field(description="estimated wait; null unless queued")
+    task: str
+    robot: str
+    controller: str
+    instruction: str
+    interfaces: list[Interface]
+    time_limit_s: float
+    time_left_s: float | None = Field(description="while ready: seconds before the time limit")
+    demos_done: int
+    demos_required: int
+    completion_code: str | None
+    redirect_url: str | None
+    ice_servers: list[str]
+    ended_reason: EndedReason | None
+
+
+class HeartbeatRequest(Strict):
+    interface: Interface | None = Field(None, description="the device the worker is using now")
+
+
+class OfferBody(Strict):
+    sdp: str = Field(max_length=MAX_SDP)
+    type: Literal["offer"]
+
+
+class AnswerBody(BaseModel):
+    sdp: str
+    type: str
+    peer_id: str
+
+
+class PairingView(BaseModel):
+    code: str
+    expires_s: float
+    phone_url: str
+
+
+class PairRequest(Strict):
+    code: str = Field(max_length=32)
+
+
+class PairResponse(BaseModel):
+    phone_token: str
+    session_id: str
+
+
+class PhoneSessionView(BaseModel):
+    session_id: str
+    state: SessionState
+    task: str
+    instruction: str
+    ended_reason: EndedReason | None
+    ice_servers: list[str]
+
+
+class EpisodeReport(BaseModel):
+    """What a teleop server POSTs for every stored episode (teleop/server.py)."""
+
+    model_config = ConfigDict(extra="ignore")  # newer teleop servers may say more
+
+    session_id: str = Field(max_length=64)
+    worker_id: str = Field(max_length=64)
+    episode: int = Field(ge=0)
+    episode_id: str = Field(min_length=1, max_length=64)
+    outcome: str = Field(max_length=32)
+    steps: int = Field(ge=0)
+    duration_s: float = Field(ge=0)
+    uri: str = Field(max_length=4096)
+    telemetry: dict[str, Any] = Field(default_factory=dict)
+    device: Interface | Literal["bot"] | None = Field(
+        None, description="the device that drove the episode, when the server knows it"
+    )
+
+
+class EpisodeAck(BaseModel):
+    episode_id: str
+    duplicate: bool
+    demos_done: int
+    demos_required: int
+    completed: bool
+
+
+class TeleopAccess(BaseModel):
+    url: str
+    token: str
+    admin_token: str
+
+
+class SessionSummary(BaseModel):
+    session_id: str
+    worker_id: str
+    campaign: str
+    state: SessionState
+    queue_position: int | None
+    task: str
+    robot: str
+    controller: str
+    interface: str | None
+    demos_done: int
+    demos_required: int
+    created_at: float
+    ready_at: float | None
+    last_heartbeat_s_ago: float
+    teleop_url: str | None
+
+
+class TeleopServerView(BaseModel):
+    session_id: str
+    url: str | None
+    pid: int | None
+    alive: bool
+    started_at: float
+
+
+class HourCount(BaseModel):
+    hour_start: float = Field(description="Unix seconds")
+    episodes: int
+    successes: int
+
+
+class DurationSummary(BaseModel):
+    key: str
+    successes: int
+    episodes: int
+    mean_s: float | None
+    median_s: float | None
+    min_s: float | None
+    max_s: float | None
+
+
+class AdminOverview(BaseModel):
+    now: float
+    capacity: int
+    sessions: list[SessionSummary]
+    queue: list[SessionSummary]
+    teleop_servers: list[TeleopServerView]
+    demos_per_hour: list[HourCount]
+    completion_time_per_worker: list[DurationSummary]
+    completion_time_per_interface: list[DurationSummary]
+    totals: dict[str, int]

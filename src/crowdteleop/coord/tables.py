@@ -1,0 +1,129 @@
+"""The database schema (SQLAlchemy 2 ORM). Times are Unix seconds (floats): one meaning on
+SQLite and PostgreSQL alike. Changing a table needs a new Alembic revision in migrations/."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sqlalchemy import JSON, Float, ForeignKey, Integer, String, Text, UniqueConstraint
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+
+
+class Base(DeclarativeBase):
+    pass
+
+
+class Campaign(Base):
+    __tablename__ = "campaigns"
+
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    config: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created_at: Mapped[float] = mapped_column(Float)
+    updated_at: Mapped[float] = mapped_column(Float)
+
+
+class Worker(Base):
+    __tablename__ = "workers"
+    __table_args__ = (UniqueConstraint("source", "external_id", name="uq_workers_external"),)
+
+    id: Mapped[str] = mapped_column(String(40), primary_key=True)
+    source: Mapped[str] = mapped_column(String(16))  # prolific | mturk | anonymous
+    external_id: Mapped[str | None] = mapped_column(String(128))
+    study_id: Mapped[str | None] = mapped_column(String(128))
+    external_session: Mapped[str | None] = mapped_column(String(128))
+    campaign: Mapped[str] = mapped_column(String(64))
+    params: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created_at: Mapped[float] = mapped_column(Float)
+
+
+class WorkerToken(Base):
+    """Hashes of the bearer tokens a worker was given (one per join; all stay valid)."""
+
+    __tablename__ = "worker_tokens"
+
+    token_hash: Mapped[str] = mapped_column(String(64), primary_key=True)
+    worker_id: Mapped[str] = mapped_column(ForeignKey("workers.id", ondelete="CASCADE"), index=True)
+    created_at: Mapped[float] = mapped_column(Float)
+
+
+class Session(Base):
+    __tablename__ = "sessions"
+
+    id: Mapped[str] = mapped_column(String(40), primary_key=True)
+    worker_id: Mapped[str] = mapped_column(ForeignKey("workers.id", ondelete="CASCADE"), index=True)
+    campaign: Mapped[str] = mapped_column(String(64), index=True)
+    state: Mapped[str] = mapped_column(String(16), index=True)
+    task: Mapped[str] = mapped_column(String(64))
+    robot: Mapped[str] = mapped_column(String(64))
+    controller: Mapped[str] = mapped_column(String(32))
+    interfaces: Mapped[list[str]] = mapped_column(JSON)
+    time_limit_s: Mapped[float] = mapped_column(Float)
+    demos_required: Mapped[int] = mapped_column(Integer)
+    demos_done: Mapped[int] = mapped_column(Integer, default=0)
+    created_at: Mapped[float] = mapped_column(Float, index=True)  # queue order
+    admitted_at: Mapped[float | None] = mapped_column(Float)
+    ready_at: Mapped[float | None] = mapped_column(Float)
+    ended_at: Mapped[float | None] = mapped_column(Float)
+    last_heartbeat_at: Mapped[float] = mapped_column(Float)
+    ended_reason: Mapped[str | None] = mapped_column(String(16))
+    completion_code: Mapped[str | None] = mapped_column(String(32))
+    interface: Mapped[str | None] = mapped_column(String(16))  # last one the page reported
+    teleop_url: Mapped[str | None] = mapped_column(String(256))
+    teleop_token: Mapped[str] = mapped_column(String(128))  # server-side secret, never sent
+    teleop_admin_token: Mapped[str] = mapped_column(String(128))
+    report_token_hash: Mapped[str] = mapped_column(String(64), index=True)
+    error: Mapped[str | None] = mapped_column(Text)
+
+
+class Episode(Base):
+    __tablename__ = "episodes"
+
+    episode_id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    session_id: Mapped[str] = mapped_column(
+        ForeignKey("sessions.id", ondelete="CASCADE"), index=True
+    )
+    worker_id: Mapped[str] = mapped_column(String(40), index=True)
+    number: Mapped[int] = mapped_column(Integer)
+    outcome: Mapped[str] = mapped_column(String(32))
+    steps: Mapped[int] = mapped_column(Integer)
+    duration_s: Mapped[float] = mapped_column(Float)
+    uri: Mapped[str] = mapped_column(Text)
+    interface: Mapped[str | None] = mapped_column(String(16))
+    task: Mapped[str] = mapped_column(String(64))
+    telemetry: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created_at: Mapped[float] = mapped_column(Float, index=True)
+
+
+class PairingCode(Base):
+    __tablename__ = "pairing_codes"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    code: Mapped[str] = mapped_column(String(16), index=True)
+    session_id: Mapped[str] = mapped_column(
+        ForeignKey("sessions.id", ondelete="CASCADE"), index=True
+    )
+    expires_at: Mapped[float] = mapped_column(Float)
+    used_at: Mapped[float | None] = mapped_column(Float)
+
+
+class PhoneToken(Base):
+    __tablename__ = "phone_tokens"
+
+    token_hash: Mapped[str] = mapped_column(String(64), primary_key=True)
+    session_id: Mapped[str] = mapped_column(
+        ForeignKey("sessions.id", ondelete="CASCADE"), index=True
+    )
+    created_at: Mapped[float] = mapped_column(Float)
+
+
+class Event(Base):
+    """An append-only log: joins, admissions, pairings, episodes, endings."""
+
+    __tablename__ = "events"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    at: Mapped[float] = mapped_column(Float, index=True)
+    kind: Mapped[str] = mapped_column(String(32))
+    session_id: Mapped[str | None] = mapped_column(String(40), index=True)
+    worker_id: Mapped[str | None] = mapped_column(String(40))
+    data: Mapped[dict[str, Any]] = mapped_column(JSON)
