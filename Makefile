@@ -8,12 +8,13 @@ PYTEST_ARGS ?=
 
 .PHONY: run test lint format bench clean system-deps
 
-## Start crowdteleop (for now: a scripted operator runs a task headless and writes an MP4).
+## Start the coordination server on http://localhost:8000 (prints the URLs to open).
 run: $(STAMP)
-	$(PY) -m crowdteleop demo --task lift --output out/demo-lift.mp4
+	$(PY) -m crowdteleop serve
 
 ## Install what the tests need and run the whole suite (slow tests included).
 test: $(STAMP)
+	bash scripts/system-deps.sh test  # also starts PostgreSQL if it is down
 	$(VENV)/bin/ruff check src tests benchmarks
 	$(PY) -m pytest $(PYTEST_ARGS)
 

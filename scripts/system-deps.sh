@@ -12,8 +12,24 @@ packages=(
   libglib2.0-0
 )
 if [ "$profile" = "test" ]; then
-  packages+=()
+  packages+=(
+    postgresql   # the coordination server's database tests run against a real PostgreSQL
+  )
 fi
+
+# The database tests need PostgreSQL listening on 127.0.0.1:5432 (trust auth, database test).
+start_postgres() {
+  [ "$profile" = "test" ] || return 0
+  command -v pg_isready >/dev/null || return 0
+  pg_isready -q -h 127.0.0.1 -p 5432 && return 0
+  local version
+  version=$(ls /etc/postgresql 2>/dev/null | sort -V | tail -n 1)
+  [ -n "$version" ] || { echo "warning: PostgreSQL is installed but has no cluster" >&2; return 0; }
+  echo "Starting PostgreSQL $version"
+  pg_ctlcluster --skip-systemctl-redirect "$version" main start || true
+  for _ in $(seq 1 30); do pg_isready -q -h 127.0.0.1 -p 5432 && return 0; sleep 0.5; done
+  echo "warning: PostgreSQL did not come up on 127.0.0.1:5432" >&2
+}
 
 missing=()
 for pkg in "${packages[@]}"; do
@@ -25,6 +41,7 @@ for pkg in "${packages[@]}"; do
 done
 
 if [ ${#missing[@]} -eq 0 ]; then
+  start_postgres
   exit 0
 fi
 
@@ -37,3 +54,4 @@ fi
 export DEBIAN_FRONTEND=noninteractive
 $sudo apt-get update -qq
 $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"
+start_postgres
