@@ -1,0 +1,192 @@
+"""The coordinator's database layer, on SQLite and on the machine's real PostgreSQL."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+import pytest
+from alembic.autogenerate import compare_metadata
+from alembic.migration import MigrationContext
+from sqlalchemy import create_engine, inspect
+
+from crowdteleop.coord.campaign import CampaignConfig
+from crowdteleop.coord.db import make_engine, migrate, sync_url
+from crowdteleop.coord.store import Store
+from crowdteleop.coord.tables import Base, Episode, Session
+from tests.coord_fixtures import database_url, postgres_database  # noqa: F401
+
+
+def _run(coroutine):
+    return asyncio.run(asyncio.wait_for(coroutine, 60))
+
+
+async def _store(url: str) -> Store:
+    await migrate(url)
+    return Store(make_engine(url))
+
+
+def _session(worker_id: str, sid: str, created_at: float, state: str = "queued") -> Session:
+    return Session(
+        id=sid,
+        worker_id=worker_id,
+        campaign="default",
+        state=state,
+        task="lift",
+        robot="Sawyer",
+        controller="ik-velocity",
+        interfaces=["phone", "keyboard"],
+        time_limit_s=600.0,
+        demos_required=2,
+        demos_done=0,
+        created_at=created_at,
+        last_heartbeat_at=created_at,
+        teleop_token="t" * 20,
+        teleop_admin_token="a" * 20,
+        report_token_hash="h",
+    )
+
+
+def _episode(eid: str, sid: str, outcome: str = "success") -> Episode:
+    return Episode(
+        episode_id=eid,
+        session_id=sid,
+        worker_id="w",
+        number=1,
+        outcome=outcome,
+        steps=80,
+        duration_s=4.0,
+        uri="file:///x.hdf5",
+        interface="phone",
+        task="lift",
+        telemetry={"fps": 20},
+        created_at=time.time(),
+    )
+
+
+def test_migrations_reach_the_models_and_run_twice(database_url):  # noqa: F811
+    _run(migrate(database_url))
+    _run(migrate(database_url))  # a second start finds nothing to do
+    engine = create_engine(sync_url(database_url))
+    try:
+        with engine.connect() as connection:
+            diff = compare_metadata(MigrationContext.configure(connection), Base.metadata)
+            tables = set(inspect(connection).get_table_names())
+    finally:
+        engine.dispose()
+    assert diff == [], "tables.py changed without an Alembic revision"
+    assert {"workers", "sessions", "episodes", "events", "pairing_codes"} <= tables
+
+
+def test_rejoining_with_the_same_external_id_is_the_same_worker(database_url):  # noqa: F811
+    async def scenario():
+        store = await _store(database_url)
+        try:
+            await store.save_campaigns([CampaignConfig()])
+            first, token1, created1 = await store.join("default", "prolific", "PID1", "S", "X")
+            again, token2, created2 = await store.join("default", "prolific", "PID1", "S", "Y")
+            other, _, _ = await store.join("default", "mturk", "PID1")  # another platform
+            anon1, _, _ = await store.join("default", "anonymous", None)
+            anon2, _, _ = await store.join("default", "anonymous", None)
+            by_old = await store.worker_by_token(token1)
+            by_new = await store.worker_by_token(token2)
+            nobody = await store.worker_by_token("not-a-token")
+            return first, again, other, anon1, anon2, by_old, by_new, nobody, created1, created2
+        finally:
+            await store.close()
+
+    first, again, other, anon1, anon2, by_old, by_new, nobody, created1, created2 = _run(
+        scenario()
+    )
+    assert (created1, created2) == (True, False)
+    assert again.id == first.id and again.external_session == "Y"
+    assert other.id != first.id
+    assert anon1.id != anon2.id
+    assert by_old.id == by_new.id == first.id, "every token a worker got stays valid"
+    assert nobody is None
+
+
+def test_episode_reports_count_once(database_url):  # noqa: F811
+    async def scenario():
+        store = await _store(database_url)
+        try:
+            worker, _, _ = await store.join("default", "anonymous", None)
+            await store.add_session(_session(worker.id, "s_0000000000000001", time.time()))
+            sid = "s_0000000000000001"
+            results = [
+                await store.add_episode(_episode("e1", sid)),
+                await store.add_episode(_episode("e1", sid)),  # a retried report
+                await store.add_episode(_episode("e2", sid, outcome="reset")),
+                await store.add_episode(_episode("e3", sid)),
+            ]
+            episodes = await store.episodes(sid)
+            kinds = [e.kind for e in await store.events(sid)]
+            return results, episodes, kinds
+        finally:
+            await store.close()
+
+    results, episodes, kinds = _run(scenario())
+    assert results == [(True, 1), (False, 1), (True, 1), (True, 2)]
+    assert [e.episode_id for e in episodes] == ["e1", "e2", "e3"]
+    assert kinds.count("episode") == 3 and kinds[0] == "queued"
+
+
+def test_pairing_codes_are_single_use_and_expire(database_url):  # noqa: F811
+    async def scenario():
+        store = await _store(database_url)
+        try:
+            worker, _, _ = await store.join("default", "anonymous", None)
+            sid = "s_0000000000000002"
+            await store.add_session(_session(worker.id, sid, time.time()))
+            now = time.time()
+            assert await store.add_pairing_code(sid, "ABC234", now + 60)
+            clash = await store.add_pairing_code(sid, "ABC234", now + 60)
+            assert await store.add_pairing_code(sid, "OLD234", now - 1)
+            first = await store.redeem_pairing_code("ABC234", now)
+            second = await store.redeem_pairing_code("ABC234", now)
+            expired = await store.redeem_pairing_code("OLD234", now)
+            phone = await store.session_by_phone_token(first[1]) if first else None
+            return clash, first, second, expired, phone
+        finally:
+            await store.close()
+
+    clash, first, second, expired, phone = _run(scenario())
+    assert clash is False, "a live code is never handed out twice"
+    assert first is not None and first[0] == "s_0000000000000002"
+    assert second is None and expired is None
+    assert phone is not None and phone.id == "s_0000000000000002"
+
+
+def test_live_sessions_keep_queue_order_and_updates_respect_state(database_url):  # noqa: F811
+    async def scenario():
+        store = await _store(database_url)
+        try:
+            worker, _, _ = await store.join("default", "anonymous", None)
+            base = time.time()
+            for i, sid in enumerate(["s_000000000000000c", "s_000000000000000a"]):
+                await store.add_session(_session(worker.id, sid, base + i))
+            order = [s.id for s in await store.live_sessions()]
+            ended = await store.update_session(
+                "s_000000000000000c", only_if_state=("queued",), state="ended"
+            )
+            again = await store.update_session(
+                "s_000000000000000c", only_if_state=("queued",), state="ready"
+            )
+            live = [s.id for s in await store.live_sessions()]
+            totals = await store.totals()
+            return order, ended, again, live, totals
+        finally:
+            await store.close()
+
+    order, ended, again, live, totals = _run(scenario())
+    assert order == ["s_000000000000000c", "s_000000000000000a"], "FIFO by arrival"
+    assert (ended, again) == (True, False), "an ended session never comes back"
+    assert live == ["s_000000000000000a"]
+    assert totals["sessions"] == 2 and totals["workers"] == 1
+
+
+def test_unsupported_database_urls_say_what_is_supported():
+    from crowdteleop.coord.db import DatabaseUrlError
+
+    with pytest.raises(DatabaseUrlError, match="sqlite:///FILE or postgresql"):
+        sync_url("mysql://root@localhost/test")
