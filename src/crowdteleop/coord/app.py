@@ -10,7 +10,6 @@ from typing import Any
 
 import aiohttp
 from fastapi import FastAPI, Request
-from fastapi.staticfiles import StaticFiles
 
 from crowdteleop.coord import api_admin, api_internal, api_pairing, api_sessions, pages
 from crowdteleop.coord.config import CoordConfig
@@ -65,7 +64,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
     app.include_router(api_admin.router)
     app.include_router(api_internal.router)
     app.include_router(pages.router)
-    app.mount("/static", StaticFiles(directory=pages.STATIC, check_dir=False), name="static")
+    app.mount("/static", pages.StaticDirectory(pages.STATIC), name="static")
 
     @app.get("/health", tags=["server"])
     async def health(request: Request) -> dict[str, Any]:

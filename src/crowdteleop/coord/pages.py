@@ -7,6 +7,9 @@ from typing import Any
 
 from fastapi import APIRouter, Request
 from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
+from fastapi.staticfiles import StaticFiles
+from starlette.exceptions import HTTPException
+from starlette.types import Scope
 
 STATIC = Path(__file__).resolve().parent.parent / "web" / "static"
 PAGES = ("join", "teleop", "phone", "admin")
@@ -47,3 +50,20 @@ async def protocol() -> dict[str, Any]:
     from crowdteleop.teleop.protocol import json_schema
 
     return json_schema()
+
+
+class StaticDirectory(StaticFiles):
+    """StaticFiles that answers 404 (not 500) while the folder does not exist yet."""
+
+    def __init__(self, directory: Path) -> None:
+        super().__init__(directory=directory, check_dir=False)
+        self.folder = directory
+
+    async def check_config(self) -> None:
+        if self.folder.is_dir():
+            await super().check_config()
+
+    async def get_response(self, path: str, scope: Scope) -> Any:
+        if not self.folder.is_dir():
+            raise HTTPException(404, "no static files are installed")
+        return await super().get_response(path, scope)
