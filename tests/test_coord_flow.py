@@ -1,0 +1,215 @@
+"""`crowdteleop serve` with real teleop server processes: what workers experience end to end
+(capacity 1: queue, leave, abandon, WebRTC through the coordinator, a bot's demonstration
+completing the session), and no process left behind."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import time
+
+import httpx
+import pytest
+from aiortc import RTCConfiguration, RTCPeerConnection, RTCSessionDescription
+
+from crowdteleop.client.bot import Bot
+from crowdteleop.client.connection import TeleopClient
+from tests.coord_fixtures import ADMIN, coord_server, pid_alive
+
+pytestmark = pytest.mark.slow
+
+ADMIN_HEADERS = {"Authorization": f"Bearer {ADMIN}"}
+
+
+def auth(token: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}"}
+
+
+class Worker:
+    """A worker's page: joins, asks for a session, heart-beats while `beating`."""
+
+    def __init__(self, http: httpx.AsyncClient, params: dict[str, str]) -> None:
+        self.http, self.params = http, params
+        self.token = self.sid = ""
+        self.beating = True
+        self.view: dict = {}
+        self._task: asyncio.Task | None = None
+
+    async def start(self) -> dict:
+        joined = (await self.http.post("/api/join", json={"params": self.params})).json()
+        self.token = joined["worker_token"]
+        response = await self.http.post("/api/sessions", headers=auth(self.token))
+        assert response.status_code == 200, response.text
+        self.view = response.json()
+        self.sid = self.view["session_id"]
+        self._task = asyncio.create_task(self._beat())
+        return self.view
+
+    async def _beat(self) -> None:
+        while True:
+            if self.beating:
+                path = f"/api/sessions/{self.sid}/heartbeat"
+                self.view = (await self.http.post(path, headers=auth(self.token))).json()
+            else:
+                path = f"/api/sessions/{self.sid}"
+                self.view = (await self.http.get(path, headers=auth(self.token))).json()
+            await asyncio.sleep(0.5)
+
+    async def until(self, state: str, timeout: float) -> dict:
+        deadline = time.monotonic() + timeout
+        while self.view.get("state") != state:
+            assert time.monotonic() < deadline, f"{self.sid} never {state}: {self.view}"
+            await asyncio.sleep(0.2)
+        return self.view
+
+    async def stop(self) -> None:
+        if self._task:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+
+
+async def hello_through(http: httpx.AsyncClient, path: str, headers: dict) -> dict:
+    """A browser-like WebRTC offer signalled through the coordinator; the server's hello."""
+    pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
+    events = pc.createDataChannel("events")
+    hello: asyncio.Future = asyncio.get_running_loop().create_future()
+
+    @events.on("message")
+    def on_message(raw: str) -> None:
+        message = json.loads(raw)
+        if message.get("type") == "hello" and not hello.done():
+            hello.set_result(message)
+
+    try:
+        await pc.setLocalDescription(await pc.createOffer())
+        body = {"sdp": pc.localDescription.sdp, "type": "offer"}
+        response = await http.post(path, json=body, headers=headers)
+        assert response.status_code == 200, response.text
+        answer = response.json()
+        await pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
+        return await asyncio.wait_for(hello, 30)
+    finally:
+        await pc.close()
+
+
+async def teleop_pids(http: httpx.AsyncClient) -> dict[str, int]:
+    overview = (await http.get("/api/admin/overview", headers=ADMIN_HEADERS)).json()
+    return {s["session_id"]: s["pid"] for s in overview["teleop_servers"] if s["pid"]}
+
+
+async def until(predicate, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, what
+        await asyncio.sleep(0.2)
+
+
+def test_capacity_one_queue_leave_reap_signal_and_complete(tmp_path):
+    config = {
+        "capacity": 1,
+        "heartbeat_timeout_s": 4.0,
+        "campaigns": [{"name": "study", "demos_required": 1, "time_limit_s": 600}],
+    }
+    seen_pids: list[int] = []
+    with coord_server(tmp_path, **config) as server:
+
+        async def scenario() -> dict:
+            async with httpx.AsyncClient(base_url=server.url, timeout=60) as http:
+                alice = Worker(http, {"PROLIFIC_PID": "alice1", "STUDY_ID": "st"})
+                bob = Worker(http, {"workerId": "BOB2"})
+                carol = Worker(http, {"PROLIFIC_PID": "carol3", "STUDY_ID": "st"})
+                await alice.start()
+                await alice.until("ready", 120)
+                queued = await bob.start()
+                assert (queued["state"], queued["queue_position"]) == ("queued", 1)
+                assert queued["eta_s"] > 0
+
+                # WebRTC signalling through the coordinator, for the page and the phone.
+                hello = await hello_through(
+                    http, f"/api/sessions/{alice.sid}/offer", auth(alice.token)
+                )
+                assert (hello["session_id"], hello["role"]) == (alice.sid, "worker")
+                path = f"/api/sessions/{alice.sid}/pairing"
+                code = (await http.post(path, headers=auth(alice.token))).json()["code"]
+                phone = (await http.post("/api/pair", json={"code": code})).json()
+                hello = await hello_through(http, "/api/phone/offer", auth(phone["phone_token"]))
+                assert (hello["session_id"], hello["role"]) == (alice.sid, "phone")
+
+                # Alice closes the tab: the beacon frees the slot, her process goes, Bob starts.
+                alice_pid = (await teleop_pids(http))[alice.sid]
+                seen_pids.append(alice_pid)
+                await alice.stop()
+                left = await http.post(f"/api/sessions/{alice.sid}/leave?token={alice.token}")
+                assert left.json()["ended_reason"] == "left"
+                await until(lambda: not pid_alive(alice_pid), 20, "alice's server still runs")
+                await bob.until("ready", 120)
+                await carol.start()
+                assert carol.view["queue_position"] == 1
+
+                # Bob's phone locks (no more heartbeats): reaped, process gone, Carol admitted.
+                bob_pid = (await teleop_pids(http))[bob.sid]
+                seen_pids.append(bob_pid)
+                bob.beating = False
+                silent_since = time.monotonic()
+                await bob.until("ended", 15)
+                reaped_after = time.monotonic() - silent_since
+                assert bob.view["ended_reason"] == "abandoned"
+                await until(lambda: not pid_alive(bob_pid), 20, "bob's server still runs")
+                await carol.until("ready", 120)
+                seen_pids.append((await teleop_pids(http))[carol.sid])
+
+                # A scripted operator does Carol's demonstration through the admin door.
+                path = f"/api/admin/sessions/{carol.sid}/teleop"
+                access = (await http.get(path, headers=ADMIN_HEADERS)).json()
+                client = TeleopClient(
+                    access["url"], access["token"], role="admin", admin_token=access["admin_token"]
+                )
+                await client.connect()
+                result = await Bot(client, seed=0).run(episodes=1, timeout_s=120)
+                done = await carol.until("ended", 30)
+                await client.close()
+                overview = (await http.get("/api/admin/overview", headers=ADMIN_HEADERS)).json()
+                for worker in (bob, carol):
+                    await worker.stop()
+                return {
+                    "reaped_after": reaped_after,
+                    "bot": result.episodes,
+                    "carol": done,
+                    "overview": overview,
+                }
+
+        outcome = asyncio.run(asyncio.wait_for(scenario(), 420))
+        log = server.log()
+
+    assert outcome["reaped_after"] < 4.0 + 3.0, outcome["reaped_after"]
+    assert outcome["bot"] == ["success"]
+    carol = outcome["carol"]
+    assert carol["ended_reason"] == "completed" and carol["demos_done"] == 1
+    assert carol["completion_code"]
+    assert carol["redirect_url"].endswith(f"cc={carol['completion_code']}")
+    overview = outcome["overview"]
+    assert overview["totals"]["successes"] == 1 and overview["totals"]["completed_sessions"] == 1
+    assert len(set(seen_pids)) == 3
+    assert not [pid for pid in seen_pids if pid_alive(pid)], "a teleop server outlived serve"
+    assert "Traceback" not in log, log[-3000:]
+
+
+def test_stopping_serve_stops_its_teleop_servers(tmp_path):
+    with coord_server(tmp_path, capacity=1) as server:
+
+        async def scenario() -> int:
+            async with httpx.AsyncClient(base_url=server.url, timeout=60) as http:
+                worker = Worker(http, {})
+                await worker.start()
+                await worker.until("ready", 120)
+                pid = (await teleop_pids(http))[worker.sid]
+                await worker.stop()
+                return pid
+
+        pid = asyncio.run(asyncio.wait_for(scenario(), 180))
+        assert pid_alive(pid)
+        server.process.send_signal(2)  # SIGINT, as Ctrl-C
+        server.process.wait(timeout=30)
+    assert not pid_alive(pid), "the teleop server outlived its coordinator"
