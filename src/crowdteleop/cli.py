@@ -198,3 +198,7 @@ def _action_mode(controller: str) -> str:
 from crowdteleop.coord.cli import serve as _serve  # noqa: E402  (registered last, see coord/cli.py)
 
 app.command("serve")(_serve)
+
+from crowdteleop.data.cli import app as dataset_app  # noqa: E402  (registered last)
+
+app.add_typer(dataset_app, name="dataset")

@@ -1,0 +1,217 @@
+"""``crowdteleop dataset build | replay | stats | export`` (heavy imports inside the commands,
+so ``crowdteleop --help`` stays fast)."""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated, Literal
+
+import typer
+from rich.console import Console
+
+from crowdteleop.errors import CrowdteleopError
+
+app = typer.Typer(
+    help="Build, replay, summarize and export demonstration datasets.", no_args_is_help=True
+)
+console = Console()
+errors = Console(stderr=True)
+
+
+@contextmanager
+def _clear_errors() -> Iterator[None]:
+    """Our errors (and pydantic's) as one red line and exit code 2, not a traceback."""
+    from pydantic import ValidationError
+
+    try:
+        yield
+    except (CrowdteleopError, ValidationError, OSError) as error:
+        errors.print(f"[red]error:[/red] {error}", soft_wrap=True)
+        raise typer.Exit(2) from error
+
+
+@contextmanager
+def _progress(description: str) -> Iterator[Callable[[int, int], None]]:
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+    )
+
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=console, transient=False) as bar:
+        job = bar.add_task(description, total=None)
+
+        def update(done: int, total: int) -> None:
+            bar.update(job, completed=done, total=total)
+
+        yield update
+
+
+def _local_sources(sources: list[str], endpoint: str | None, work: Path) -> list[Path]:
+    """Directories and files as given; ``s3://bucket/prefix`` downloaded into ``work``."""
+    from crowdteleop.data.s3 import S3Config, S3Storage
+
+    paths = []
+    for source in sources:
+        if not source.startswith("s3://"):
+            paths.append(Path(source))
+            continue
+        bucket, _, prefix = source[len("s3://") :].partition("/")
+        store = S3Storage(S3Config(bucket=bucket, endpoint_url=endpoint))
+        store.check()
+        keys = [key for key in store.list(prefix) if key.endswith(".hdf5")]
+        for key in keys:
+            target = work / bucket / key
+            store.get(store.uri(key), target)
+            paths.append(target)
+    return paths
+
+
+@app.command()
+def build(
+    sources: Annotated[list[str], typer.Argument(help="episode dirs/files or s3://bucket/prefix")],
+    output: Annotated[Path, typer.Option(help="dataset file to write")] = Path("demo.hdf5"),
+    task: Annotated[str | None, typer.Option(help="only this task's episodes")] = None,
+    include_failed: Annotated[bool, typer.Option(help="keep unsuccessful episodes too")] = False,
+    fastest: Annotated[list[int] | None, typer.Option(help="fastest_N filter key(s)")] = None,
+    valid_fraction: Annotated[float, typer.Option(help="share of demos in mask/valid")] = 0.1,
+    seed: Annotated[int, typer.Option(help="seed of the train/valid split")] = 0,
+    drift_tolerance: Annotated[
+        float, typer.Option(help="flag demos whose action replay drifts more (<0: no check)")
+    ] = 1e-6,
+    skip_bad: Annotated[bool, typer.Option(help="leave unreadable episodes out")] = False,
+    overwrite: Annotated[bool, typer.Option(help="replace an existing output")] = False,
+    s3_endpoint: Annotated[str | None, typer.Option(help="endpoint of s3:// sources")] = None,
+) -> None:
+    """Assemble episode files into a robomimic-compatible demo.hdf5."""
+    from crowdteleop.data.dataset import build_dataset
+
+    with _clear_errors(), tempfile.TemporaryDirectory() as work:
+        paths = _local_sources(sources, s3_endpoint, Path(work))
+        with _progress("checking and assembling") as progress:
+            report = build_dataset(
+                paths,
+                output,
+                task=task,
+                include_failed=include_failed,
+                fastest=fastest or (),
+                valid_fraction=valid_fraction,
+                seed=seed,
+                skip_bad=skip_bad,
+                overwrite=overwrite,
+                drift_tolerance=None if drift_tolerance < 0 else drift_tolerance,
+                progress=progress,
+            )
+    for path, why in report.skipped:
+        errors.print(f"[yellow]skipped[/yellow] {path}: {why}")
+    for name in report.flagged:
+        errors.print(f"[yellow]flagged[/yellow] {name}: action replay diverges beyond tolerance")
+    console.print(
+        f"{output}: {len(report.demos)} demos, {sum(d.steps for d in report.demos)} steps, "
+        f"{len(report.flagged)} flagged, built in {report.seconds:.1f} s"
+    )
+
+
+@app.command()
+def replay(
+    path: Annotated[Path, typer.Argument(help="dataset or episode file")],
+    demo: Annotated[
+        str | None, typer.Option(help="demo name, e.g. demo_3 (default: first)")
+    ] = None,
+    camera: Annotated[str | None, typer.Option(help="camera (default: the worker's)")] = None,
+    width: Annotated[int, typer.Option(help="video width (even)")] = 320,
+    height: Annotated[int, typer.Option(help="video height (even)")] = 240,
+    output: Annotated[Path, typer.Option(help="MP4 to write")] = Path("out/replay.mp4"),
+) -> None:
+    """Re-simulate a demo from its states into an MP4; check state replay, measure drift."""
+    from crowdteleop.data.replay import ReplayChecker, load_demo
+
+    with _clear_errors(), ReplayChecker() as checker:
+        loaded = load_demo(path, demo)
+        with _progress(f"replaying {loaded.name}") as progress:
+            result = checker.replay(loaded, camera, width, height, output, progress)
+    verdict = (
+        "[green]exact[/green]"
+        if result.state_exact and result.step_exact
+        else "[red]NOT exact[/red]"
+    )
+    console.print(
+        f"{loaded.name}: state replay {verdict} ({result.frames} frames -> {output}); "
+        f"action replay drift: max {result.drift.max_state_error:.3g}, "
+        f"final {result.drift.final_state_error:.3g}"
+    )
+    if not (result.state_exact and result.step_exact):
+        raise typer.Exit(1)
+
+
+@app.command()
+def stats(
+    sources: Annotated[list[Path], typer.Argument(help="dataset file(s) or episode dirs")],
+    output: Annotated[Path, typer.Option(help="directory for stats.json/.md and PNGs")] = Path(
+        "out/stats"
+    ),
+    bins: Annotated[int, typer.Option(help="histogram bins")] = 10,
+) -> None:
+    """Counts, hours, success rates, completion times and KS tests, as the paper's tables."""
+    from crowdteleop.analysis.stats import markdown, write_report
+    from crowdteleop.data.dataset import dataset_demos, episode_files, read_inputs, summarize
+
+    with _clear_errors():
+        demos = []
+        for source in sources:
+            if source.is_file() and _is_dataset(source):
+                demos += dataset_demos(source)
+            else:
+                episodes, _ = read_inputs(episode_files([source]))
+                demos += [summarize(path.stem, ep) for path, ep in episodes]
+        if not demos:
+            raise CrowdteleopError("no demonstrations found")
+        report = write_report(demos, output, bins)
+    console.print(markdown(report), markup=False, highlight=False)
+    console.print(f"written: {output}/stats.json, stats.md, {len(report['plots'])} plots")
+
+
+def _is_dataset(path: Path) -> bool:
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as file:
+            return file.attrs.get("format") == "crowdteleop-dataset"
+    except OSError:
+        return False
+
+
+@app.command()
+def export(
+    dataset: Annotated[Path, typer.Argument(help="dataset built by `dataset build`")],
+    format: Annotated[
+        Literal["robomimic", "lerobot"], typer.Option(help="output format")
+    ] = "robomimic",
+    output: Annotated[Path, typer.Option(help="file (robomimic) or directory (lerobot)")] = Path(
+        "out/export"
+    ),
+    camera: Annotated[list[str] | None, typer.Option(help="camera(s) to render")] = None,
+    width: Annotated[int, typer.Option(help="image width")] = 84,
+    height: Annotated[int, typer.Option(help="image height")] = 84,
+) -> None:
+    """Re-render image observations from the states into robomimic or LeRobot v3 layout."""
+    from crowdteleop.data.export import export_lerobot, export_robomimic
+
+    cameras = camera or ["agentview"]
+    with _clear_errors(), _progress(f"rendering {', '.join(cameras)}") as progress:
+        writer = export_robomimic if format == "robomimic" else export_lerobot
+        written = writer(dataset, output, cameras, width, height, progress)
+    console.print(f"{format} export: {written}")
+    console.print(json.dumps({"cameras": cameras, "resolution": [width, height]}))

@@ -1,0 +1,375 @@
+"""``crowdteleop dataset build``: episode files -> one robomimic-style ``demo.hdf5``.
+
+Layout (robosuite's demo.hdf5 as extended by robomimic; docs/dataset.md): ``data`` attrs
+``env_args`` (JSON) and ``total``; ``data/demo_<k>`` (k from 1, oldest first) with ``states``,
+``actions``, ``rewards``, ``dones`` and attrs ``model_file``, ``num_samples``, plus our
+metadata as attributes; ``mask/<filter key>`` lists of demo names: ``train`` / ``valid``
+(90/10, seeded), ``interface_<x>``, ``worker_<x>``, ``network_<x>``, ``fastest_<N>``,
+``replay_ok``.
+
+Every input is read and checked before anything is written, and the output appears under its
+name only when whole (temporary file, fsync, rename): a bad input leaves an existing dataset
+exactly as it was.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from crowdteleop.data.episode_file import DEMO, CorruptEpisodeError, Episode, read_episode
+from crowdteleop.data.storage import fsync_directory
+from crowdteleop.data.versions import SCHEMA_VERSION, runtime_versions
+from crowdteleop.errors import CrowdteleopError
+
+DATASET_FORMAT = "crowdteleop-dataset"
+COPIED = (
+    "states",
+    "actions",
+    "rewards",
+    "dones",
+    "success",
+    "server_time",
+    "step_duration_s",
+    "contacts",
+    "commands",
+)
+DEFAULT_DRIFT_TOLERANCE = 1e-6  # max |state error| of action replay in the recording simulator
+
+
+class DatasetError(CrowdteleopError, ValueError):
+    """Inputs that cannot make a dataset, or a file that is not one of our datasets."""
+
+
+@dataclass(frozen=True)
+class DemoSummary:
+    """What stats and filter keys need of one demonstration."""
+
+    name: str
+    episode_id: str
+    task: str
+    outcome: str
+    interface: str
+    worker: str
+    network: str
+    campaign: str
+    steps: int
+    completion_s: float
+    drift: float | None = None
+
+
+@dataclass
+class BuildReport:
+    output: Path
+    demos: list[DemoSummary] = field(default_factory=list)
+    skipped: list[tuple[str, str]] = field(default_factory=list)  # (input, why)
+    flagged: list[str] = field(default_factory=list)  # demos whose action replay diverged
+    seconds: float = 0.0
+
+
+def interface_of(episode: Episode) -> str:
+    """The interface the worker used: as recorded, else the devices that sent commands."""
+    named = episode.metadata.get("interface")
+    if isinstance(named, str) and named:
+        return named
+    devices = Counter(c.get("device") for c in episode.commands if c.get("device"))
+    return devices.most_common(1)[0][0] if devices else "unknown"
+
+
+def network_of(metadata: dict[str, Any]) -> str:
+    """The network condition: a label the campaign set, else one read off the telemetry
+    (the paper's four: baseline, low-capacity, high-delay, both), else "unknown"."""
+    named = metadata.get("network_condition")
+    if isinstance(named, str) and named:
+        return named
+    telemetry = metadata.get("telemetry") or {}
+    rtt, kbps = telemetry.get("rtt_ms"), telemetry.get("bitrate_kbps")
+    if not rtt and not kbps:
+        return "unknown"
+    slow = bool(kbps) and kbps < 1000
+    late = bool(rtt) and rtt >= 150
+    return {
+        (False, False): "baseline",
+        (True, False): "low-capacity",
+        (False, True): "high-delay",
+        (True, True): "both",
+    }[(slow, late)]
+
+
+def summarize(name: str, episode: Episode, drift: float | None = None) -> DemoSummary:
+    metadata = episode.metadata
+    hz = float(
+        metadata.get("control_hz") or (metadata.get("sim_config") or {}).get("control_hz") or 20.0
+    )
+    return DemoSummary(
+        name=name,
+        episode_id=episode.episode_id,
+        task=str(metadata.get("task", "unknown")),
+        outcome=episode.outcome,
+        interface=interface_of(episode),
+        worker=str(metadata.get("worker_id") or "unknown"),
+        network=network_of(metadata),
+        campaign=str(metadata.get("campaign") or ""),
+        steps=episode.steps,
+        completion_s=episode.steps / hz,
+        drift=drift,
+    )
+
+
+def read_inputs(
+    paths: Sequence[Path], skip_bad: bool = False
+) -> tuple[list[tuple[Path, Episode]], list[tuple[str, str]]]:
+    """Every episode file read and checked; a bad one raises (or is skipped, said why)."""
+    episodes, skipped = [], []
+    for path in paths:
+        try:
+            episode = read_episode(path)
+            if episode.model_xml is None or episode.env_args is None:
+                raise CorruptEpisodeError(f"{path} has no model_file or env_args to replay it")
+            if episode.steps == 0:
+                raise CorruptEpisodeError(f"{path} holds no steps")
+        except CorruptEpisodeError as error:
+            if not skip_bad:
+                raise DatasetError(
+                    f"{error} (nothing was written; --skip-bad leaves it out)"
+                ) from error
+            skipped.append((str(path), str(error)))
+            continue
+        episodes.append((path, episode))
+    return episodes, skipped
+
+
+def episode_files(sources: Sequence[Path]) -> list[Path]:
+    """``*.hdf5`` under each source directory (recursively), or the source file itself."""
+    files: list[Path] = []
+    for source in sources:
+        source = Path(source)
+        if source.is_dir():
+            files.extend(sorted(p for p in source.rglob("*.hdf5") if not p.name.startswith(".")))
+        elif source.is_file():
+            files.append(source)
+        else:
+            raise DatasetError(f"{source} does not exist")
+    return files
+
+
+def build_dataset(
+    sources: Sequence[Path],
+    output: Path,
+    *,
+    include_failed: bool = False,
+    task: str | None = None,
+    fastest: Sequence[int] = (),
+    valid_fraction: float = 0.1,
+    seed: int = 0,
+    skip_bad: bool = False,
+    overwrite: bool = False,
+    drift_tolerance: float | None = DEFAULT_DRIFT_TOLERANCE,
+    progress: Callable[[int, int], None] | None = None,
+) -> BuildReport:
+    """Assemble episode files into one dataset file; ``drift_tolerance`` None skips the
+    action-replay check (otherwise demos beyond it are flagged, not dropped)."""
+    started = time.perf_counter()
+    output = Path(output)
+    if output.exists() and not overwrite:
+        raise DatasetError(f"{output} exists; pass --overwrite to replace it")
+    episodes, skipped = read_inputs(episode_files(sources), skip_bad)
+    chosen = [
+        (path, ep)
+        for path, ep in episodes
+        if (include_failed or ep.outcome == "success")
+        and (task is None or ep.metadata.get("task") == task)
+    ]
+    if not chosen:
+        raise DatasetError(f"no {'' if include_failed else 'successful '}episodes to build from")
+    chosen.sort(key=lambda pair: (pair[1].created_at, pair[1].episode_id))
+    envs = {ep.env_args["env_name"] for _, ep in chosen}  # type: ignore[index]
+    if len(envs) > 1:
+        raise DatasetError(
+            f"episodes of several environments ({', '.join(sorted(envs))}): a robomimic "
+            "dataset holds one; build one per task with --task"
+        )
+    report = BuildReport(output=output, skipped=skipped)
+    drifts: list[float | None] = [None] * len(chosen)
+    if drift_tolerance is not None:
+        from crowdteleop.data.replay import ReplayChecker
+
+        with ReplayChecker() as checker:
+            for i, (_, episode) in enumerate(chosen):
+                drifts[i] = checker.action_drift(episode).max_state_error
+                if progress is not None:
+                    progress(i + 1, 2 * len(chosen))
+    report.demos = [summarize(f"demo_{i + 1}", ep, drifts[i]) for i, (_, ep) in enumerate(chosen)]
+    report.flagged = [
+        d.name
+        for d in report.demos
+        if d.drift is not None and drift_tolerance is not None and not d.drift <= drift_tolerance
+    ]
+    tmp = output.with_name(f".{output.name}.{os.getpid()}.tmp")
+    output.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with h5py.File(tmp, "w") as file:
+            _write(file, chosen, report, fastest, valid_fraction, seed, drift_tolerance, progress)
+        with open(tmp, "rb") as handle:
+            os.fsync(handle.fileno())
+        os.replace(tmp, output)
+    finally:
+        tmp.unlink(missing_ok=True)
+    fsync_directory(output.parent)
+    report.seconds = time.perf_counter() - started
+    return report
+
+
+def _write(
+    file: h5py.File,
+    chosen: list[tuple[Path, Episode]],
+    report: BuildReport,
+    fastest: Sequence[int],
+    valid_fraction: float,
+    seed: int,
+    drift_tolerance: float | None,
+    progress: Callable[[int, int], None] | None,
+) -> None:
+    first = chosen[0][1]
+    env_args = first.env_args or {}
+    versions = runtime_versions()
+    now = time.localtime()
+    file.attrs.update(format=DATASET_FORMAT, schema_version=SCHEMA_VERSION)
+    data = file.create_group("data")
+    data.attrs.update(
+        env_args=json.dumps(env_args),
+        total=sum(ep.steps for _, ep in chosen),
+        date=time.strftime("%m-%d-%Y", now),
+        time=time.strftime("%H:%M:%S", now),
+        repository_version=versions.get("robosuite", "unknown"),
+        env=env_args.get("env_name", ""),
+        env_info=json.dumps(env_args.get("env_kwargs", {})),
+        schema_version=SCHEMA_VERSION,
+        platform_version=versions.get("crowdteleop", "unknown"),
+        built_with=json.dumps(versions),
+        built_at=time.time(),
+        drift_tolerance=-1.0 if drift_tolerance is None else drift_tolerance,
+    )
+    for i, ((path, episode), demo) in enumerate(zip(chosen, report.demos, strict=True)):
+        with h5py.File(path, "r") as source:
+            for name in COPIED:
+                if name in source[DEMO]:
+                    source.copy(source[DEMO][name], data, name=f"{demo.name}/{name}")
+        group = data[demo.name]
+        recorded_versions = episode.metadata.get("versions") or {}
+        group.attrs.update(
+            num_samples=episode.steps,
+            model_file=episode.model_xml or "",
+            episode_id=episode.episode_id,
+            outcome=episode.outcome,
+            recovered=episode.recovered,
+            task=demo.task,
+            robot=str(episode.metadata.get("robot", "")),
+            controller=str(episode.metadata.get("controller", "")),
+            interface=demo.interface,
+            worker=demo.worker,
+            campaign=demo.campaign,
+            network_condition=demo.network,
+            telemetry=json.dumps(episode.metadata.get("telemetry") or {}),
+            completion_time_s=demo.completion_s,
+            created_at=episode.created_at,
+            platform_version=str(recorded_versions.get("crowdteleop", "unknown")),
+            simulator_versions=json.dumps(
+                {k: recorded_versions.get(k, "unknown") for k in ("robosuite", "mujoco")}
+            ),
+            schema_version=SCHEMA_VERSION,
+            source=str(path),
+            metadata=json.dumps(episode.metadata),
+            action_replay_drift=-1.0 if demo.drift is None else demo.drift,
+            action_replay_flagged=demo.name in report.flagged,
+        )
+        if progress is not None:
+            progress(len(chosen) + i + 1, 2 * len(chosen))
+    _write_masks(file, report.demos, report.flagged, fastest, valid_fraction, seed)
+
+
+def _write_masks(
+    file: h5py.File,
+    demos: list[DemoSummary],
+    flagged: list[str],
+    fastest: Sequence[int],
+    valid_fraction: float,
+    seed: int,
+) -> None:
+    names = [d.name for d in demos]
+    shuffled = names[:]
+    random.Random(seed).shuffle(shuffled)
+    n_valid = round(len(names) * valid_fraction)
+    if valid_fraction > 0 and len(names) >= 2:
+        n_valid = max(1, n_valid)
+    masks: dict[str, list[str]] = {
+        "train": sorted(shuffled[n_valid:], key=names.index),
+        "valid": sorted(shuffled[:n_valid], key=names.index),
+        "replay_ok": [n for n in names if n not in flagged],
+    }
+    for label, attribute in (
+        ("interface", "interface"),
+        ("worker", "worker"),
+        ("network", "network"),
+    ):
+        for demo in demos:
+            masks.setdefault(f"{label}_{_safe(getattr(demo, attribute))}", []).append(demo.name)
+    by_time = sorted(demos, key=lambda d: (d.completion_s, d.name))
+    for n in fastest:
+        masks[f"fastest_{n}"] = sorted((d.name for d in by_time[:n]), key=names.index)
+    group = file.create_group("mask")
+    for key, members in masks.items():
+        group.create_dataset(key, data=np.array(members, dtype="S"))
+
+
+def _safe(value: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in value) or "unknown"
+
+
+def open_dataset(path: Path) -> h5py.File:
+    """One of our datasets, open for reading; anything else raises ``DatasetError``."""
+    try:
+        file = h5py.File(path, "r")
+    except OSError as error:
+        raise DatasetError(f"{path} is not a readable HDF5 file: {error}") from error
+    if file.attrs.get("format") != DATASET_FORMAT or "data" not in file:
+        file.close()
+        raise DatasetError(
+            f"{path} is not a crowdteleop dataset (build one with `crowdteleop dataset build`)"
+        )
+    return file
+
+
+def dataset_demos(path: Path) -> list[DemoSummary]:
+    """Summaries of every demo in a built dataset, in order."""
+    with open_dataset(path) as file:
+        summaries = []
+        for name in sorted(file["data"], key=lambda n: int(n.split("_")[-1])):
+            attrs = file["data"][name].attrs
+            drift = float(attrs.get("action_replay_drift", -1.0))
+            summaries.append(
+                DemoSummary(
+                    name=name,
+                    episode_id=str(attrs["episode_id"]),
+                    task=str(attrs["task"]),
+                    outcome=str(attrs["outcome"]),
+                    interface=str(attrs["interface"]),
+                    worker=str(attrs["worker"]),
+                    network=str(attrs["network_condition"]),
+                    campaign=str(attrs["campaign"]),
+                    steps=int(attrs["num_samples"]),
+                    completion_s=float(attrs["completion_time_s"]),
+                    drift=None if drift < 0 else drift,
+                )
+            )
+        return summaries
