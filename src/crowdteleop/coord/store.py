@@ -88,6 +88,7 @@ class Store:
                         await db.flush()
                     else:
                         worker.external_session = external_session or worker.external_session
+                        worker.campaign = campaign  # the link they came by last
                     db.add(
                         WorkerToken(
                             token_hash=token_hash(token), worker_id=worker.id, created_at=now
