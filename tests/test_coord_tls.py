@@ -1,0 +1,51 @@
+"""HTTPS for phones on the LAN: a self-signed certificate made once, and `serve --https`."""
+
+from __future__ import annotations
+
+import json
+import ssl
+import time
+
+import httpx
+from cryptography import x509
+
+from crowdteleop.coord.tls import self_signed
+from tests.coord_fixtures import coord_server
+
+
+def test_the_self_signed_certificate_is_made_once_and_remade_for_new_names(tmp_path):
+    cert, key = self_signed(tmp_path, ["localhost", "127.0.0.1"])
+    first = cert.read_bytes()
+    assert self_signed(tmp_path, ["127.0.0.1"])[0].read_bytes() == first, "kept"
+    self_signed(tmp_path, ["127.0.0.1", "phone-lan.example"])
+    remade = x509.load_pem_x509_certificate(cert.read_bytes())
+    names = remade.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    assert "phone-lan.example" in names.get_values_for_type(x509.DNSName)
+    assert oct(key.stat().st_mode & 0o777) == "0o600"
+    ssl.create_default_context().load_cert_chain(cert, key)  # a pair that belongs together
+
+
+def test_serve_https_gives_phones_an_https_link_and_teleop_servers_a_loopback_one(tmp_path):
+    with coord_server(tmp_path, "--https") as server:
+        assert server.url.startswith("https://127.0.0.1:")
+        cert = server.data_dir / "tls" / "cert.pem"
+        with httpx.Client(
+            base_url=server.url, verify=ssl.create_default_context(cafile=cert)
+        ) as http:
+            assert http.get("/health").json()["status"] == "ok"
+            token = http.post("/api/join", json={"params": {}}).json()["worker_token"]
+            headers = {"Authorization": f"Bearer {token}"}
+            sid = http.post("/api/sessions", headers=headers).json()["session_id"]
+            pairing = http.post(f"/api/sessions/{sid}/pairing", headers=headers).json()
+            assert pairing["phone_url"] == f"{server.url}/phone?code={pairing['code']}"
+            written = server.data_dir / "sessions" / sid / "teleop.json"
+            deadline = time.monotonic() + 20
+            while not written.exists():
+                assert time.monotonic() < deadline
+                time.sleep(0.05)
+            report_url = json.loads(written.read_text())["report_url"]
+            assert report_url.startswith("http://127.0.0.1:")
+            assert report_url.endswith("/internal/episodes")
+            internal = report_url.removesuffix("/internal/episodes")
+            assert internal != server.url.replace("https", "http")
+            assert httpx.get(f"{internal}/health").json()["status"] == "ok", "plain loopback"
