@@ -26,7 +26,11 @@ def body_subtree_geoms(model: mujoco.MjModel, root_body_ids: Iterable[int]) -> s
 
 
 class ContactReader:
-    """Turns MuJoCo's contact list into robot-part / object events."""
+    """Turns MuJoCo's contact list into robot-part / object events.
+
+    Runs every control step, so the contact list is classified with numpy (geom -> part / object
+    lookup tables) and only robot-object contacts cost a `mj_contactForce` call.
+    """
 
     def __init__(
         self,
@@ -35,28 +39,43 @@ class ContactReader:
         object_geoms: Mapping[int, str],
     ) -> None:
         self._model = model
-        self._robot_geoms = dict(robot_geoms)
-        self._object_geoms = dict(object_geoms)
+        self._parts = sorted(set(robot_geoms.values()))
+        self._objects = sorted(set(object_geoms.values()))
+        self._part_of = np.full(model.ngeom, -1)
+        for geom, part in robot_geoms.items():
+            self._part_of[geom] = self._parts.index(part)
+        self._object_of = np.full(model.ngeom, -1)
+        for geom, obj in object_geoms.items():
+            self._object_of[geom] = self._objects.index(obj)
         self._force = np.zeros(6)
 
     def read(self, data: mujoco.MjData) -> list[ContactEvent]:
+        if not data.ncon:
+            return []
+        geoms = data.contact.geom  # (ncon, 2)
+        parts, objects = self._part_of[geoms], self._object_of[geoms]
+        forward = (parts[:, 0] >= 0) & (objects[:, 1] >= 0)  # geom1 robot, geom2 object
+        backward = ~forward & (parts[:, 1] >= 0) & (objects[:, 0] >= 0)
         strongest: dict[tuple[str, str], float] = {}
-        for index in range(data.ncon):
-            contact = data.contact[index]
-            pair = self._classify(contact.geom1, contact.geom2)
-            if pair is None:
-                continue
-            mujoco.mj_contactForce(self._model, data, index, self._force)
+        for index in np.flatnonzero(forward | backward):
+            robot_side = 0 if forward[index] else 1
+            pair = (
+                self._parts[parts[index, robot_side]],
+                self._objects[objects[index, 1 - robot_side]],
+            )
+            mujoco.mj_contactForce(self._model, data, int(index), self._force)
             intensity = min(abs(self._force[0]) / FULL_INTENSITY_NEWTONS, 1.0)
             strongest[pair] = max(strongest.get(pair, 0.0), intensity)
         return [
             ContactEvent(part, obj, round(value, 4)) for (part, obj), value in strongest.items()
         ]
 
-    def _classify(self, geom1: int, geom2: int) -> tuple[str, str] | None:
-        for robot_geom, other in ((geom1, geom2), (geom2, geom1)):
-            part = self._robot_geoms.get(robot_geom)
-            obj = self._object_geoms.get(other)
-            if part is not None and obj is not None:
-                return part, obj
-        return None
+
+def touching(data: mujoco.MjData, geoms_1: np.ndarray, geoms_2: np.ndarray) -> bool:
+    """Any contact between a geom of ``geoms_1`` and one of ``geoms_2`` (id arrays), as
+    robosuite's ``check_contact`` decides by name, without a Python loop over the contacts."""
+    if not data.ncon:
+        return False
+    pairs = data.contact.geom
+    first, second = np.isin(pairs, geoms_1), np.isin(pairs, geoms_2)
+    return bool(np.any((first[:, 0] & second[:, 1]) | (first[:, 1] & second[:, 0])))

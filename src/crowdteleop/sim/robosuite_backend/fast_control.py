@@ -49,11 +49,12 @@ class FoldedArm:
         self._mass = np.zeros((model.nv, model.nv))
 
     def _actuators(self, prefix: str, count: int) -> tuple[np.ndarray, np.ndarray]:
-        """(actuator ids, first wrap address of their tendons)."""
+        """(actuator ids, (count, count) addresses in ``wrap_prm`` of their tendons' joint
+        coefficients: row k holds tendon k's), so one indexed write sets every tendon."""
         model = self._model
         ids = np.array([model.actuator(f"{prefix}{k}").id for k in range(count)])
         tendons = [model.tendon(f"{prefix}{k}").id for k in range(count)]
-        return ids, model.tendon_adr[tendons]
+        return ids, model.tendon_adr[tendons][:, None] + np.arange(count)[None, :]
 
     # --- the quantities robosuite's controllers read -----------------------------------
     def mass_matrix(self, data: mujoco.MjData) -> np.ndarray:
@@ -72,8 +73,9 @@ class FoldedArm:
 
     # --- the two laws ------------------------------------------------------------------
     def joint_servo(self, data: mujoco.MjData, goal: np.ndarray, kp: float, kd: float) -> None:
-        mass = self.mass_matrix(data)
-        self.apply(data, self.coriolis(data), kp * mass, kd * mass, goal)
+        """K = kp M, D = kd M: one eigen-decomposition of M serves both."""
+        gains, vectors = decompose(self.mass_matrix(data))
+        self.apply(data, self.coriolis(data), (kp * gains, vectors), (kd * gains, vectors), goal)
 
     def osc(
         self,
@@ -108,24 +110,30 @@ class FoldedArm:
         self,
         data: mujoco.MjData,
         tau0: np.ndarray,
-        stiffness: np.ndarray,
-        damping: np.ndarray,
+        stiffness: np.ndarray | Basis,
+        damping: np.ndarray | Basis,
         q_ref: np.ndarray,
     ) -> None:
+        """Write the law; K and D as symmetric matrices or already split (`decompose`)."""
         model = self._model
-        n = len(self.layout.dofs)
         data.ctrl[self.layout.motors] = np.clip(tau0, self._motor_low, self._motor_high)
-        for (actuators, wraps), matrix, is_stiffness in (
-            (self._stiffness, stiffness, True),
-            (self._damping, damping, False),
-        ):
-            gains, vectors = np.linalg.eigh(0.5 * (matrix + matrix.T))
-            gains = np.maximum(gains, 0.0)
-            for k in range(n):
-                model.wrap_prm[wraps[k] : wraps[k] + n] = vectors[:, k]
-            if is_stiffness:
-                model.actuator_gainprm[actuators, 0] = gains
-                model.actuator_biasprm[actuators, 1] = -gains
-                data.ctrl[actuators] = vectors.T @ q_ref
-            else:
-                model.actuator_biasprm[actuators, 2] = -gains
+        gains, vectors = decompose(stiffness) if isinstance(stiffness, np.ndarray) else stiffness
+        actuators, coefficients = self._stiffness
+        model.wrap_prm[coefficients] = vectors.T
+        model.actuator_gainprm[actuators, 0] = gains
+        model.actuator_biasprm[actuators, 1] = -gains
+        data.ctrl[actuators] = vectors.T @ q_ref
+        gains, vectors = decompose(damping) if isinstance(damping, np.ndarray) else damping
+        actuators, coefficients = self._damping
+        model.wrap_prm[coefficients] = vectors.T
+        model.actuator_gainprm[actuators, 0] = gains
+        model.actuator_biasprm[actuators, 2] = -gains
+
+
+Basis = tuple[np.ndarray, np.ndarray]  # (gains >= 0, eigenvectors as columns)
+
+
+def decompose(matrix: np.ndarray) -> Basis:
+    """K = sum_k gains_k v_k v_k^T for a symmetric K; negative (round-off) gains clipped."""
+    gains, vectors = np.linalg.eigh(0.5 * (matrix + matrix.T))
+    return np.maximum(gains, 0.0), vectors

@@ -12,7 +12,7 @@ import numpy as np
 
 from crowdteleop.errors import UnknownRobotError
 from crowdteleop.sim.config import SimConfig
-from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms
+from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, touching
 from crowdteleop.sim.fastrender import FastSceneRenderer
 from crowdteleop.sim.registry import TaskSpec, get_task
 from crowdteleop.sim.robosuite_backend import fast_model, model_fixes, tasks
@@ -83,6 +83,7 @@ class RobosuiteSimulation:
         self._ee_site_id = self._model.site(self._ee_site).id
         self._base_body_id = self._model.body(self._robot.robot_model.root_body).id
         self._contacts = self._make_contact_reader()
+        self._grasped = self._make_grasp_test()
         self._init_gripper_geometry()
         self._stepper = self._make_stepper()
         self._stepper.start_episode(self._data)
@@ -113,11 +114,11 @@ class RobosuiteSimulation:
     def step(self, action: np.ndarray) -> StepResult:
         action = self.action_spec.validate(action)
         self._stepper.step(self._data, action)
-        reward = self._env.reward(action)
-        success = self.success()
-        return StepResult(
-            float(reward), success, self.contacts(), tasks.progress(self._env, success)
-        )
+        with tasks.success_checked_once(self._env):
+            reward = self._env.reward(action)
+            success = self.success()
+            progress = tasks.progress(self._env, success, self._grasped)
+        return StepResult(float(reward), success, self.contacts(), progress)
 
     def success(self) -> bool:
         return bool(self._env._check_success())
@@ -139,7 +140,8 @@ class RobosuiteSimulation:
         return self._contacts.read(self._data)
 
     def progress(self) -> TaskProgress:
-        return tasks.progress(self._env, self.success())
+        with tasks.success_checked_once(self._env):
+            return tasks.progress(self._env, self.success(), self._grasped)
 
     def robot_state(self) -> RobotState:
         gripper_closed = self._closed_fraction(self._data)
@@ -249,6 +251,25 @@ class RobosuiteSimulation:
         low, high = self._model.jnt_range[joint_ids].T
         far = np.where(high - self._gripper_open_q > self._gripper_open_q - low, high, low)
         self._gripper_span = np.maximum(np.abs(far - self._gripper_open_q), 1e-9)
+
+    def _make_grasp_test(self) -> tasks.Grasped:
+        """robosuite's grasp test (a contact between each finger pad and the object) on geom
+        ids and numpy: robosuite's loops over the contacts in Python, name by name."""
+        model, gripper = self._model, self._robot.gripper[self._arm]
+        pads = [
+            np.array([model.geom(name).id for name in gripper.important_geoms[side]])
+            for side in ("left_fingerpad", "right_fingerpad")
+        ]
+        objects = {
+            obj.name: np.array([model.geom(name).id for name in obj.contact_geoms])
+            for obj in tasks.active_objects(self._env)
+        }
+
+        def grasped(obj: object) -> bool:
+            geoms = objects[obj.name]  # type: ignore[attr-defined]
+            return all(touching(self._data, pad, geoms) for pad in pads)
+
+        return grasped
 
     def _make_contact_reader(self) -> ContactReader:
         model = self._model

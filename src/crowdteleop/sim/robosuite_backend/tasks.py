@@ -6,6 +6,8 @@ the one place that reads them, so the rest of the platform never does.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -64,17 +66,53 @@ def object_poses(env: Any) -> dict[str, Pose]:
     return poses
 
 
-def _grasped(env: Any, obj: Any) -> bool:
-    return bool(env._check_grasp(gripper=env.robots[0].gripper, object_geoms=obj.contact_geoms))
+Grasped = Callable[[Any], bool]  # robosuite object -> whether the gripper holds it
 
 
-def progress(env: Any, success: bool) -> TaskProgress:
-    """A stage and a sentence for the worker, e.g. "can grasped" or "1 of 2 nuts placed"."""
+def robosuite_grasped(env: Any) -> Grasped:
+    """robosuite's own grasp test (both finger pads touch the object), by geom names."""
+
+    def grasped(obj: Any) -> bool:
+        gripper = env.robots[0].gripper
+        return bool(env._check_grasp(gripper=gripper, object_geoms=obj.contact_geoms))
+
+    return grasped
+
+
+@contextmanager
+def success_checked_once(env: Any) -> Iterator[None]:
+    """Inside, robosuite's ``_check_success`` runs at most once and later calls get its answer.
+
+    One control step asks three times for the same state (the reward, `success`, `progress`);
+    for PickPlace and NutAssembly each is a loop over objects. Its side effect (robosuite
+    refreshes ``objects_in_bins`` / ``objects_on_pegs``) happens on the first call.
+    """
+    original = env._check_success
+    answers: list[Any] = []
+
+    def once() -> Any:
+        if not answers:
+            answers.append(original())
+        return answers[0]
+
+    env._check_success = once  # an instance attribute shadows the method
+    try:
+        yield
+    finally:
+        del env._check_success
+
+
+def progress(env: Any, success: bool, grasped: Grasped | None = None) -> TaskProgress:
+    """A stage and a sentence for the worker, e.g. "can grasped" or "1 of 2 nuts placed".
+
+    ``grasped`` answers robosuite's grasp test (default: robosuite's own, by geom names).
+    """
+    grasped = grasped or robosuite_grasped(env)
     objects = active_objects(env)
     if hasattr(env, "cube"):
         if success:
             return TaskProgress("done", "Cube lifted: well done!", 2, 2)
-        if _grasped(env, env.cube):
+        if grasped(env.cube):
             return TaskProgress("grasped", "Cube grasped: now lift it.", 1, 2)
         return TaskProgress("reach", "Reach for the cube and grasp it.", 0, 2)
 
@@ -88,7 +126,7 @@ def progress(env: Any, success: bool) -> TaskProgress:
     where = "on their pegs" if hasattr(env, "nuts") else "in their bins"
     if success:
         return TaskProgress("done", f"All {noun} {where}: well done!", placed, len(objects))
-    held = [obj.name for obj in objects if _grasped(env, obj)]
+    held = [obj.name for obj in objects if grasped(obj)]
     if held:
         return TaskProgress(
             "grasped",
