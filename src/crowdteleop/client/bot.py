@@ -77,6 +77,8 @@ class Bot:
         self.world: RemoteWorld | None = None
         self._scene: int | None = None
         self.episodes_wanted: int | None = None
+        self._last_pose: tuple | None = None
+        self._engage_seq: int | None = None
         client.on_privileged = self._on_privileged
 
     def _on_privileged(self, message: PrivilegedState) -> None:
@@ -101,14 +103,41 @@ class Bot:
         if message.scene != self._scene:  # the server reset the scene: start over
             self._scene = message.scene
             self.operator.reset()
+            # Let go of the clutch for a step, so the server re-anchors on our next pose.
+            origin = self.operator.style.device_origin
+            self._last_pose = (origin, (0.0, 0.0, 0.0, 1.0), False, False)
+            self._engage_seq = None
+            self.client.send_pose(*self._last_pose)
+            return
         if self.operator.finished:
             return  # plan done without success: wait for the reset we asked for
+        if self._engage_seq is not None and message.command_seq < self._engage_seq:
+            # The server has not applied our clutch press yet. It anchors the device to the
+            # arm on the first engaged pose it applies, so keep sending that very pose: moving
+            # on now would offset the whole episode by a step of hand motion.
+            assert self._last_pose is not None
+            self.client.send_pose(*self._last_pose)
+            return
+        engaging = not self.operator.anchored  # the next command is the clutch press
         command = self.operator.command()
-        self.client.send_pose(
-            command.position, command.quaternion, command.engaged, command.gripper_closed
+        self._last_pose = (
+            command.position,
+            command.quaternion,
+            command.engaged,
+            command.gripper_closed,
         )
+        seq = self.client.send_pose(*self._last_pose)
+        self._engage_seq = seq if engaging else None
         if self.operator.finished:
             self.client.request("reset")
+
+    async def stream(self, hz: float) -> None:
+        """Also resend the latest pose `hz` times a second, unsynchronized with the server's
+        steps, as a phone streams its pose: what control-to-photon latency is measured on."""
+        while True:
+            await asyncio.sleep(1.0 / hz)
+            if self._last_pose is not None:
+                self.client.send_pose(*self._last_pose)
 
     async def run(self, episodes: int, timeout_s: float) -> BotResult:
         """Drive until `episodes` episodes ended (any outcome) or `timeout_s` passed."""

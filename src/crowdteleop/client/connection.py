@@ -18,6 +18,7 @@ from aiortc import RTCConfiguration, RTCIceServer, RTCPeerConnection, RTCSession
 from aiortc.mediastreams import MediaStreamError
 
 from crowdteleop.client.latency import FrameMatcher, LatencyTracker
+from crowdteleop.client.receiver import complete_frames_on_marker
 from crowdteleop.teleop.protocol import (
     PROTOCOL_VERSION,
     DeviceKind,
@@ -91,6 +92,7 @@ class TeleopClient:
         self.matcher = FrameMatcher()
         self.latency = LatencyTracker()
         self.on_privileged = on_privileged
+        complete_frames_on_marker()  # frames reach us when a browser would see them
         ice = [RTCIceServer(urls=url) for url in ice_servers]
         self.pc = RTCPeerConnection(RTCConfiguration(iceServers=ice))
         self._channels: dict[str, Any] = {}

@@ -17,6 +17,7 @@ class LoopStats:
     ticks: int = 0
     overruns: int = 0
     skipped: int = 0
+    late: int = 0  # ticks that started half a period or more after their slot
     starts: deque[float] = field(default_factory=lambda: deque(maxlen=200))
     lateness: deque[float] = field(default_factory=lambda: deque(maxlen=200))
 
@@ -72,6 +73,8 @@ class FixedRateClock:
         self.stats.ticks += 1
         self.stats.starts.append(started)
         self.stats.lateness.append(max(0.0, started - due))
+        if started - due >= self.period / 2:
+            self.stats.late += 1
         return due
 
     def finished(self, due: float) -> None:

@@ -62,6 +62,11 @@ class CommandBoard:
         self.has_pose = False
         return True
 
+    def release_clutch(self) -> None:
+        """After a reset the arm waits for a fresh press: a clutch still held from the last
+        episode would anchor the new scene to a stale device pose."""
+        self.engaged = False
+
     def _check(self, peer_id: str, device: DeviceKind, seq: int) -> bool:
         """False for stale messages; raises NotInControlError for other devices."""
         if self.controller is None:

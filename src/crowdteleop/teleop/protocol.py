@@ -262,6 +262,7 @@ class PrivilegedState(_Message):
     type: Literal["privileged"] = "privileged"
     step: int
     scene: int = Field(description="changes whenever the scene resets")
+    command_seq: int = Field(description="the last command applied in this step")
     end_effector: tuple[float, ...]
     objects: dict[str, tuple[float, ...]]
 

@@ -311,7 +311,11 @@ class TeleopServer:
                     )
                 )
             if result.privileged is not None:
-                message = PrivilegedState(step=self.clock.stats.ticks, **result.privileged)
+                message = PrivilegedState(
+                    step=self.clock.stats.ticks,
+                    command_seq=result.command_seq,
+                    **result.privileged,
+                )
                 for admin in admins:
                     admin.send(message, "admin")
             if self._status_due or self.clock.stats.ticks % 2 == 0:

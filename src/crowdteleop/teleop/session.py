@@ -174,6 +174,7 @@ class TeleopSession:
         if needs_reset:
             self._seed += 1
             await self._in_sim_thread(self.teleop.reset, self._seed)
+            self.board.release_clutch()
 
     # --- the control step ------------------------------------------------------------------
 
@@ -221,6 +222,7 @@ class TeleopSession:
                 self._end(outcome)
                 self._seed += 1
                 self.teleop.reset(self._seed)
+                self.board.release_clutch()
         video = self.config.video
         image = sim.render(video.camera, video.width, video.height)
         changed = self._last_image is None or image is not self._last_image

@@ -52,6 +52,7 @@ class SessionTelemetry:
             "ticks": loop.ticks,
             "overruns": loop.overruns,
             "skipped": loop.skipped,
+            "late": loop.late,
             "frames_sent": self.frames_published,
             "fps": round(self.fps, 2),
             "bitrate_kbps": round(self.bitrate_kbps, 1),

@@ -74,6 +74,11 @@ class ScriptedOperator:
         self.finished = False
 
     @property
+    def anchored(self) -> bool:
+        """Whether the clutch press that anchors the device to the arm has been issued."""
+        return self._plan is not None
+
+    @property
     def stage(self) -> str:
         return self._leg.waypoint.label if self._leg else "start"
 
