@@ -16,6 +16,9 @@ from tests.coord_fixtures import (  # noqa: F401
     postgres_database,
 )
 
+# starlette warns that its TestClient will move from httpx to httpx2; nothing to do here.
+pytestmark = pytest.mark.filterwarnings("ignore:Using `httpx`")
+
 
 @pytest.fixture
 def launcher():
