@@ -31,7 +31,7 @@ app = typer.Typer(add_completion=False)
 
 def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
     """Step time vs recording time (append, including its periodic write + fsync)."""
-    step_s = record_s = 0.0
+    step_s = record_s = step_cpu = record_cpu = 0.0
     steps = 0
     paths = []
     with scripted_rig("lift") as rig:
@@ -40,6 +40,8 @@ def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
             episode = record_scripted_episode(rig, directory, f"bench-{seed}", seed, extra)
             step_s += episode.step_seconds
             record_s += episode.record_seconds
+            step_cpu += episode.step_cpu_seconds
+            record_cpu += episode.record_cpu_seconds
             steps += episode.steps
             paths.append(episode.path)
     return {
@@ -48,6 +50,9 @@ def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
         "step_ms": 1000 * step_s / steps,
         "record_us": 1e6 * record_s / steps,
         "overhead_pct": 100 * record_s / step_s,
+        "step_cpu_ms": 1000 * step_cpu / steps,
+        "record_cpu_us": 1e6 * record_cpu / steps,
+        "overhead_cpu_pct": 100 * record_cpu / step_cpu,
     }, paths
 
 
@@ -116,6 +121,11 @@ def main(
     table.add_row("control step (lift, ik-velocity)", f"{recording['step_ms']:.2f} ms")
     table.add_row("recording per step (append + flushes)", f"{recording['record_us']:.0f} us")
     table.add_row("recording overhead", f"{recording['overhead_pct']:.2f} % of step time")
+    table.add_row(
+        "same, CPU time of the control thread",
+        f"{recording['record_cpu_us']:.0f} us of {recording['step_cpu_ms']:.2f} ms = "
+        f"{recording['overhead_cpu_pct']:.2f} %",
+    )
     table.add_row(
         f"upload one demo ({uploading['file_kib']:.0f} KiB) to local S3",
         f"median {uploading['median_ms']:.1f} ms, p95 {uploading['p95_ms']:.1f} ms",

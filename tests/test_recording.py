@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import h5py
@@ -422,3 +423,36 @@ def test_local_storage_refuses_bad_keys_and_uris(tmp_path):
     with pytest.raises(FileNotFoundError):
         storage.put(tmp_path / "missing", "key")
     assert storage.list() == []
+
+
+def test_the_periodic_flush_runs_beside_the_appends_and_reports_failures(tmp_path, monkeypatch):
+    """With a flush interval the fsync happens in the recorder's flusher thread: steps become
+    durable without a flush call, and a failed background write surfaces on the next append."""
+    recorder = EpisodeRecorder(tmp_path, "bg", METADATA, flush_interval_s=0.01)
+    for index in range(5):
+        recorder.append(child.make_step(index))
+        time.sleep(0.02)
+    deadline = time.monotonic() + 5
+    while recorder.flushed_steps < 4 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert recorder.flushed_steps >= 4
+    assert read_partial(recorder.wal_path).steps == recorder.flushed_steps
+
+    real_write, wal_inode = os.write, recorder.wal_path.stat().st_ino
+
+    def disk_full(fd, data):
+        if os.fstat(fd).st_ino == wal_inode:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(fd, data)
+
+    monkeypatch.setattr(os, "write", disk_full)
+    time.sleep(0.02)
+    recorder.append(child.make_step(5))  # wakes the flusher, which fails
+    deadline = time.monotonic() + 5
+    with pytest.raises(RecordingError, match="No space left"):
+        while time.monotonic() < deadline:
+            time.sleep(0.02)
+            recorder.append(child.make_step(recorder.steps))
+    monkeypatch.undo()
+    path = recorder.finalize("success")  # the kept buffer is written now
+    assert_holds_child_steps(read_episode(path), recorder.steps)

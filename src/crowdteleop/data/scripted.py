@@ -30,6 +30,8 @@ class ScriptedEpisode:
     steps: int
     step_seconds: float  # wall time of the control steps alone (for overhead figures)
     record_seconds: float  # wall time of the appends alone
+    step_cpu_seconds: float  # CPU time of this thread in the control steps
+    record_cpu_seconds: float  # ... and in the appends (a busy machine inflates wall times)
 
 
 @contextmanager
@@ -86,15 +88,16 @@ def record_scripted_episode(
     recorder = EpisodeRecorder(directory, episode_id, metadata)
     operator = ScriptedOperator(sim, control.mapping, seed=seed)
     step_once = teleop.step
-    timing = {"step": 0.0, "record": 0.0}
+    timing = {"step": 0.0, "record": 0.0, "step_cpu": 0.0, "record_cpu": 0.0}
 
     def recorded_step(command: Any) -> TeleopStep:
         state = sim.get_state()
-        started_wall, started = time.time(), time.perf_counter()
+        started_wall, started, cpu = time.time(), time.perf_counter(), time.thread_time()
         step = step_once(command)
         duration = time.perf_counter() - started
         timing["step"] += duration
-        record_start = time.perf_counter()
+        timing["step_cpu"] += time.thread_time() - cpu
+        record_start, record_cpu = time.perf_counter(), time.thread_time()
         recorder.append(
             StepRecord(
                 index=recorder.steps,
@@ -117,6 +120,7 @@ def record_scripted_episode(
             )
         )
         timing["record"] += time.perf_counter() - record_start
+        timing["record_cpu"] += time.thread_time() - record_cpu
         return step
 
     teleop.step = recorded_step  # type: ignore[method-assign]
@@ -128,4 +132,13 @@ def record_scripted_episode(
     path = (
         recorder.finalize(outcome, {"versions": runtime_versions(), **extra}) if finalize else None
     )
-    return ScriptedEpisode(path, recorder, outcome, result.steps, timing["step"], timing["record"])
+    return ScriptedEpisode(
+        path,
+        recorder,
+        outcome,
+        result.steps,
+        timing["step"],
+        timing["record"],
+        timing["step_cpu"],
+        timing["record_cpu"],
+    )

@@ -10,7 +10,8 @@ construction (-0.0, subnormals and all); (2) the checksum tells a torn or garbag
 kill mid-write, or the zero-filled block a power loss can leave) from a record, where a
 damaged JSON number could still parse; (3) a step of 70 floats encodes in ~18 us, as JSON
 ~90 us (``benchmarks/recording.py`` times the whole append: ~25 us). Appends go to a memory
-buffer, written and fsync'd once ``flush_interval_s`` has passed: a crash loses at most that.
+buffer, written and fsync'd by a flusher thread once ``flush_interval_s`` has passed (so the
+fsync never stalls the control loop): a crash loses at most that.
 
 A live recorder holds ``flock`` on its log, so ``recover_orphans`` never touches an episode
 that is still being recorded, and the lock dies with a killed process. The finished episode
@@ -98,7 +99,11 @@ class EpisodeRecorder:
         if self.episode_path.exists():
             raise RecordingError(f"episode {episode_id} is already recorded: {self.episode_path}")
         self._fd = _create_wal(self.wal_path, WAL_MAGIC + _frame(header_payload))
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # state and buffer; held ~20 us by append
+        self._io = threading.Lock()  # writes to the log; always taken before _lock
+        self._due = threading.Event()
+        self._flusher: threading.Thread | None = None
+        self._deferred: RecordingError | None = None  # a background flush's failure
         self._buffer = bytearray()
         self._durable_size = os.fstat(self._fd).st_size
         self._last_flush = time.monotonic()
@@ -124,9 +129,13 @@ class EpisodeRecorder:
     def append(self, record: StepRecord) -> None:
         """Buffer one step; write and fsync the buffer when ``flush_interval_s`` has passed.
 
+        With ``flush_interval_s`` > 0 the write and fsync run in a background thread, so the
+        control loop pays for the append alone (``flushed_steps`` grows once the fsync is
+        done); with 0 every append is durable before it returns.
+
         A bad record raises before anything is buffered, so what was recorded stays intact.
-        ``RecordingError`` means the step was buffered but the flush failed (a full disk):
-        the log was cut back to whole records and the next flush retries.
+        ``RecordingError`` means the step was buffered but a flush failed (a full disk): the
+        log was cut back to whole records and the next flush retries.
         """
         with self._lock:
             self._check_open()
@@ -134,12 +143,20 @@ class EpisodeRecorder:
             self._buffer += _frame(payload)
             self._steps += 1
             self._sizes = sizes
-            if time.monotonic() - self._last_flush >= self.flush_interval_s:
+            deferred, self._deferred = self._deferred, None
+            due = time.monotonic() - self._last_flush >= self.flush_interval_s
+            if due and self.flush_interval_s == 0:
                 self._flush_locked()
+            elif due:
+                self._last_flush = time.monotonic()
+                self._start_flusher_locked()
+                self._due.set()
+        if deferred is not None:
+            raise deferred
 
     def flush(self) -> None:
         """Write and fsync every buffered step now."""
-        with self._lock:
+        with self._io, self._lock:
             self._check_open()
             self._flush_locked()
 
@@ -154,7 +171,7 @@ class EpisodeRecorder:
         extra = dict(extra_metadata or {})
         to_json(extra, "extra_metadata")
         split_metadata(extra)
-        with self._lock:
+        with self._io, self._lock:
             self._check_open()
             self._flush_locked()
             partial = read_partial(self.wal_path)
@@ -170,7 +187,7 @@ class EpisodeRecorder:
 
     def close(self) -> None:
         """Flush and release the log without finalizing: ``recover_orphans`` will finish it."""
-        with self._lock:
+        with self._io, self._lock:
             if not self._closed:
                 try:
                     self._flush_locked()
@@ -181,12 +198,48 @@ class EpisodeRecorder:
         if self._closed:
             raise RecordingError(f"episode {self.episode_id} is finalized or closed")
 
+    def _start_flusher_locked(self) -> None:
+        if self._flusher is None:
+            self._flusher = threading.Thread(
+                target=self._flush_when_due, name=f"wal-{self.episode_id}", daemon=True
+            )
+            self._flusher.start()
+
+    def _flush_when_due(self) -> None:
+        """The background flusher: the fsync happens outside ``_lock``, appends go on."""
+        while True:
+            self._due.wait()
+            self._due.clear()
+            with self._io:
+                with self._lock:
+                    if self._closed:
+                        return
+                    pending, steps = bytes(self._buffer), self._steps
+                    self._buffer.clear()
+                if not pending:
+                    continue
+                try:
+                    self._write_durably(pending)
+                except RecordingError as error:
+                    with self._lock:
+                        self._buffer[:0] = pending  # retried by the next flush
+                        self._deferred = error
+                    continue
+                self._flushed_steps = steps
+
     def _flush_locked(self) -> None:
+        """Write and fsync the buffer with ``_io`` and ``_lock`` held."""
         self._last_flush = time.monotonic()
         if not self._buffer:
             return
+        self._write_durably(bytes(self._buffer))
+        self._buffer.clear()
+        self._flushed_steps = self._steps
+
+    def _write_durably(self, data: bytes) -> None:
+        """Append ``data`` to the log and fsync it, with ``_io`` held."""
         try:
-            pending = bytes(self._buffer)
+            pending = data
             while pending:
                 pending = pending[os.write(self._fd, pending) :]
             os.fsync(self._fd)
@@ -197,19 +250,19 @@ class EpisodeRecorder:
             try:
                 os.ftruncate(self._fd, self._durable_size)
             except OSError:
-                self._close_locked()
+                if not self._closed:
+                    self._close_locked()
                 raise RecordingError(
                     f"could not write {self.wal_path} ({error}) nor cut it back; recording "
                     f"stopped, its first {self._flushed_steps} steps are recoverable"
                 ) from error
             raise RecordingError(f"could not write {self.wal_path}: {error}") from error
-        self._durable_size += len(self._buffer)
-        self._buffer.clear()
-        self._flushed_steps = self._steps
+        self._durable_size += len(data)
 
     def _close_locked(self) -> None:
         os.close(self._fd)  # also releases the flock
         self._closed = True
+        self._due.set()  # the flusher sees the recorder closed and ends
 
     def _encode(self, record: StepRecord) -> tuple[bytes, tuple[int, int]]:
         if record.index != self._steps:
