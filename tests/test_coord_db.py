@@ -95,9 +95,7 @@ def test_rejoining_with_the_same_external_id_is_the_same_worker(database_url):  
         finally:
             await store.close()
 
-    first, again, other, anon1, anon2, by_old, by_new, nobody, created1, created2 = _run(
-        scenario()
-    )
+    first, again, other, anon1, anon2, by_old, by_new, nobody, created1, created2 = _run(scenario())
     assert (created1, created2) == (True, False)
     assert again.id == first.id and again.external_session == "Y"
     assert other.id != first.id
