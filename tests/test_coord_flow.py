@@ -8,6 +8,7 @@ import asyncio
 import contextlib
 import json
 import time
+from pathlib import Path
 
 import httpx
 import pytest
@@ -170,10 +171,23 @@ def test_capacity_one_queue_leave_reap_signal_and_complete(tmp_path):
                 result = await Bot(client, seed=0).run(episodes=1, timeout_s=120)
                 done = await carol.until("ended", 30)
                 await client.close()
+                path = f"/api/admin/sessions/{carol.sid}/episodes"
+                episodes = (await http.get(path, headers=ADMIN_HEADERS)).json()
+                # The teleop server retries a report whose answer it lost: counted once.
+                written = server.data_dir / "sessions" / carol.sid / "teleop.json"
+                report_token = json.loads(written.read_text())["report_token"]
+                first = episodes[0]
+                replay = await http.post(
+                    "/internal/episodes",
+                    headers=auth(report_token),
+                    json={**first, "episode": first["number"], "telemetry": {}},
+                )
                 overview = (await http.get("/api/admin/overview", headers=ADMIN_HEADERS)).json()
                 for worker in (bob, carol):
                     await worker.stop()
                 return {
+                    "episodes": episodes,
+                    "replay": replay.json(),
                     "reaped_after": reaped_after,
                     "bot": result.episodes,
                     "carol": done,
@@ -185,6 +199,11 @@ def test_capacity_one_queue_leave_reap_signal_and_complete(tmp_path):
 
     assert outcome["reaped_after"] < 4.0 + 3.0, outcome["reaped_after"]
     assert outcome["bot"] == ["success"]
+    [episode] = outcome["episodes"]
+    assert episode["outcome"] == "success" and episode["task"] == "lift"
+    stored = episode["uri"].removeprefix("file://")
+    assert Path(stored).is_file() and str(server.data_dir / "episodes" / "study") in stored
+    assert outcome["replay"]["duplicate"] is True and outcome["replay"]["demos_done"] == 1
     carol = outcome["carol"]
     assert carol["ended_reason"] == "completed" and carol["demos_done"] == 1
     assert carol["completion_code"]

@@ -10,6 +10,7 @@ from crowdteleop.coord.deps import CoordinatorDep, SessionId, require_admin
 from crowdteleop.coord.errors import ApiError
 from crowdteleop.coord.schemas import (
     AdminOverview,
+    EpisodeView,
     ErrorBody,
     SessionSummary,
     SessionView,
@@ -86,6 +87,17 @@ async def session_view(session_id: SessionId, coordinator: CoordinatorDep) -> Se
     if session is None:
         raise ApiError(404, "not_found", "no such session")
     return await coordinator.view(session)
+
+
+@router.get("/sessions/{session_id}/episodes", response_model=list[EpisodeView])
+async def session_episodes(session_id: SessionId, coordinator: CoordinatorDep) -> list[EpisodeView]:
+    """The episodes a session's teleop server reported, oldest first."""
+    if await coordinator.store.session(session_id) is None:
+        raise ApiError(404, "not_found", "no such session")
+    return [
+        EpisodeView.model_validate(episode, from_attributes=True)
+        for episode in await coordinator.store.episodes(session_id)
+    ]
 
 
 @router.get("/sessions/{session_id}/teleop", response_model=TeleopAccess)

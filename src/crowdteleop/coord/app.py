@@ -20,6 +20,7 @@ from crowdteleop.coord.reaper import run_reaper
 from crowdteleop.coord.security import FailureLimiter
 from crowdteleop.coord.service import Coordinator
 from crowdteleop.coord.store import Store
+from crowdteleop.web import qr
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +65,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
     app.include_router(api_admin.router)
     app.include_router(api_internal.router)
     app.include_router(pages.router)
+    app.include_router(qr.router)
     app.mount("/static", pages.StaticDirectory(pages.STATIC), name="static")
 
     @app.get("/health", tags=["server"])

@@ -143,6 +143,20 @@ class EpisodeAck(BaseModel):
     completed: bool
 
 
+class EpisodeView(BaseModel):
+    episode_id: str
+    session_id: str
+    worker_id: str
+    number: int
+    outcome: str
+    steps: int
+    duration_s: float
+    uri: str
+    interface: str | None
+    task: str
+    created_at: float
+
+
 class TeleopAccess(BaseModel):
     url: str
     token: str

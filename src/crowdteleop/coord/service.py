@@ -151,7 +151,7 @@ class Coordinator:
     def teleop_config(self, session: Session, report_token: str) -> TeleopConfig:
         from crowdteleop.control.config import ACTION_MODE_FOR_CONTROLLER
 
-        directory = self.config.data_dir / "episodes" / session.campaign / session.id
+        directory = (self.config.data_dir / "episodes" / session.campaign / session.id).resolve()
         fields = deep_merge(
             self.config.teleop,
             {
