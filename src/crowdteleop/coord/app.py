@@ -65,6 +65,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
     app.include_router(api_admin.router)
     app.include_router(api_internal.router)
     app.include_router(pages.router)
+    _include_web_routers(app)
     app.include_router(qr.router)
     app.mount("/static", pages.StaticDirectory(pages.STATIC), name="static")
 
@@ -74,3 +75,13 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         return {"status": "ok", "capacity": config.capacity, "busy": len(coordinator.pool.slots)}
 
     return app
+
+
+def _include_web_routers(app: FastAPI) -> None:
+    """Routes the web front end adds (crowdteleop/web, e.g. /qr.svg), when it is installed."""
+    try:
+        from crowdteleop.web.qr import router as qr_router
+    except ImportError as exc:
+        log.info("no QR code route: %s", exc)
+        return
+    app.include_router(qr_router)
