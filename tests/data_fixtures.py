@@ -129,17 +129,21 @@ def _aws(keys: dict[str, str]) -> dict[str, str]:
     }
 
 
-def record_lift_episodes(directory: Path, count: int, finalize: bool = True) -> list:
-    """``count`` scripted lift episodes (seeds 0..count-1), people alternating."""
+def record_lift_episodes(directory: Path, count: int, finalize: bool = True, rig=None) -> list:
+    """``count`` scripted lift episodes (seeds 0..count-1), people alternating; ``rig`` (from
+    ``scripted_rig``) saves building the simulation again."""
     from crowdteleop.data.scripted import record_scripted_episode, scripted_rig
 
-    episodes = []
-    with scripted_rig("lift") as rig:
-        for seed in range(count):
-            extra = {**PEOPLE[seed % len(PEOPLE)], "campaign": "tests"}
-            episodes.append(
-                record_scripted_episode(
-                    rig, directory, f"lift-{seed}", seed, extra, finalize=finalize
-                )
+    with contextlib.ExitStack() as stack:
+        rig = rig or stack.enter_context(scripted_rig("lift"))
+        return [
+            record_scripted_episode(
+                rig,
+                directory,
+                f"lift-{seed}",
+                seed,
+                {**PEOPLE[seed % len(PEOPLE)], "campaign": "tests"},
+                finalize=finalize,
             )
-    return episodes
+            for seed in range(count)
+        ]

@@ -27,8 +27,8 @@ def episodes(tmp_path_factory):
     """Six successful scripted lift demos (two workers, two interfaces, two network
     conditions) and one that ran out of time."""
     directory = tmp_path_factory.mktemp("episodes")
-    recorded = record_lift_episodes(directory, N_SUCCESS)
     with scripted_rig("lift") as rig:
+        recorded = record_lift_episodes(directory, N_SUCCESS, rig=rig)
         failed = record_scripted_episode(
             rig,
             directory,

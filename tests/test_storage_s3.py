@@ -29,14 +29,22 @@ def _sha(data: bytes) -> str:
 
 
 @pytest.fixture(scope="module")
+def rig():
+    from crowdteleop.data.scripted import scripted_rig
+
+    with scripted_rig("lift") as built:
+        yield built
+
+
+@pytest.fixture(scope="module")
 def server():
     with moto_s3() as s3:
         s3.client().create_bucket(Bucket=BUCKET)
         yield s3
 
 
-def test_scripted_episodes_land_in_a_local_directory(tmp_path):
-    episodes = record_lift_episodes(tmp_path / "incoming", 1, finalize=False)
+def test_scripted_episodes_land_in_a_local_directory(rig, tmp_path):
+    episodes = record_lift_episodes(tmp_path / "incoming", 1, finalize=False, rig=rig)
     config = RecordingConfig(directory=tmp_path / "store")
     storage = config.open_storage()
     assert isinstance(storage, LocalDirectoryStorage)
@@ -50,8 +58,8 @@ def test_scripted_episodes_land_in_a_local_directory(tmp_path):
     assert episode.metadata["versions"]["robosuite"] == "1.5.2"
 
 
-def test_scripted_episodes_land_in_s3_verified_and_read_back(server, tmp_path):
-    episodes = record_lift_episodes(tmp_path / "incoming", 2, finalize=False)
+def test_scripted_episodes_land_in_s3_verified_and_read_back(rig, server, tmp_path):
+    episodes = record_lift_episodes(tmp_path / "incoming", 2, finalize=False, rig=rig)
     config = RecordingConfig(
         directory=tmp_path,
         storage=StorageConfig(kind="s3", s3=server.config(prefix="campaign-1")),
@@ -90,11 +98,11 @@ def test_puts_are_idempotent_and_never_replace_an_object(server, tmp_path):
     assert store.get(uri, tmp_path / "c.hdf5").read_bytes() == first.read_bytes()
 
 
-def test_server_stopped_mid_run_every_demonstration_arrives_exactly_once(tmp_path):
+def test_server_stopped_mid_run_every_demonstration_arrives_exactly_once(rig, tmp_path):
     """Two episodes stored, the server stops, two more wait in the spool (the 'stored' rule
     refuses to call them saved), the process 'restarts', the server returns: all four are in
     the bucket once, byte for byte; a crash between upload and unspool re-uploads as a no-op."""
-    episodes = record_lift_episodes(tmp_path / "incoming", 4, finalize=False)
+    episodes = record_lift_episodes(tmp_path / "incoming", 4, finalize=False, rig=rig)
     with moto_s3() as server:
         server.client().create_bucket(Bucket=BUCKET)
         s3 = server.config(prefix="run", attempts=2, backoff_base_s=0.05)

@@ -1,4 +1,4 @@
-"""Demonstration data: recording, storage, video."""
+"""Demonstration data: recording, storage (local, S3 behind a spool), datasets, video."""
 
 from crowdteleop.data.recording import (
     CorruptEpisodeError,
@@ -13,6 +13,8 @@ from crowdteleop.data.recording import (
     read_partial,
     recover_orphans,
 )
+from crowdteleop.data.s3 import S3Config, S3Storage, StorageAccessError, StorageUnavailableError
+from crowdteleop.data.spool import SpooledStorage
 from crowdteleop.data.storage import (
     EpisodeStorage,
     InvalidKeyError,
@@ -21,6 +23,7 @@ from crowdteleop.data.storage import (
     ObjectNotFoundError,
     StorageError,
 )
+from crowdteleop.data.stores import StorageConfig, open_storage
 
 __all__ = [
     "CorruptEpisodeError",
@@ -35,8 +38,15 @@ __all__ = [
     "Outcome",
     "PartialEpisode",
     "RecordingError",
+    "S3Config",
+    "S3Storage",
+    "SpooledStorage",
     "StepRecord",
+    "StorageAccessError",
+    "StorageConfig",
     "StorageError",
+    "StorageUnavailableError",
+    "open_storage",
     "read_episode",
     "read_partial",
     "recover_orphans",
