@@ -123,10 +123,12 @@ class Compositor:
         if self._composited_in_a_row >= PARK_AFTER_FRAMES and self._textures.park(self._context):
             self.textures_parked = True
         rgb, depth = self._draw(camera, width, height, self._moving_option, skybox=False)
-        # Bottom-up like GL; only the (few) pixels the moving layer wins are copied.
+        # Bottom-up like GL; only the (few) pixels the moving layer wins are copied, each as one
+        # 3-byte item (a third faster than indexing (N, 3) rows).
         frame = background.rgb_bottom_up.copy()
         nearer = np.flatnonzero(depth > background.depth)
-        frame.reshape(-1, 3)[nearer] = rgb.reshape(-1, 3)[nearer]
+        pixels = frame.reshape(-1, 3).view("V3").ravel()
+        pixels[nearer] = rgb.reshape(-1, 3).view("V3").ravel()[nearer]
         return np.ascontiguousarray(frame[::-1])
 
     def free(self) -> None:
