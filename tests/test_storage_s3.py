@@ -7,7 +7,9 @@ import hashlib
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from crowdteleop.cli import app
 from crowdteleop.data import LocalDirectoryStorage, read_episode
 from crowdteleop.data.s3 import S3Storage, StorageAccessError, StorageUnavailableError
 from crowdteleop.data.spool import SpooledStorage
@@ -15,7 +17,14 @@ from crowdteleop.data.storage import KeyExistsError, file_sha256
 from crowdteleop.data.stores import StorageConfig
 from crowdteleop.teleop.config import RecordingConfig
 from crowdteleop.teleop.episode import FinishedEpisode, store_episode
-from tests.data_fixtures import BUCKET, PEOPLE, moto_s3, moto_with_credentials, record_lift_episodes
+from tests.data_fixtures import (
+    BUCKET,
+    KEYS,
+    PEOPLE,
+    moto_s3,
+    moto_with_credentials,
+    record_lift_episodes,
+)
 
 
 def _finished(episode, number):
@@ -142,6 +151,27 @@ def test_server_stopped_mid_run_every_demonstration_arrives_exactly_once(rig, tm
             assert restarted.list() == keys
             objects = server.client().list_objects_v2(Bucket=BUCKET, Prefix="run/")["Contents"]
             assert len(objects) == 4, "exactly once"
+            # and a dataset builds straight from the bucket (credentials from the environment)
+            result = CliRunner().invoke(
+                app,
+                [
+                    "dataset",
+                    "build",
+                    f"s3://{BUCKET}/run/success",
+                    "--s3-endpoint",
+                    server.url,
+                    "--output",
+                    str(tmp_path / "from-s3.hdf5"),
+                    "--drift-tolerance",
+                    "-1",
+                ],
+                env={
+                    "AWS_ACCESS_KEY_ID": KEYS["access_key_id"],
+                    "AWS_SECRET_ACCESS_KEY": KEYS["secret_access_key"],
+                },
+            )
+            assert result.exit_code == 0, result.output
+            assert "4 demos" in result.output
         finally:
             restarted.close()
 

@@ -18,8 +18,8 @@ from crowdteleop.errors import CrowdteleopError
 app = typer.Typer(
     help="Build, replay, summarize and export demonstration datasets.", no_args_is_help=True
 )
-console = Console()
-errors = Console(stderr=True)
+console = Console(soft_wrap=True)
+errors = Console(stderr=True, soft_wrap=True)
 
 
 @contextmanager
