@@ -72,10 +72,10 @@ class ContactReader:
 
 
 def touching(data: mujoco.MjData, geoms_1: np.ndarray, geoms_2: np.ndarray) -> bool:
-    """Any contact between a geom of ``geoms_1`` and one of ``geoms_2`` (id arrays), as
-    robosuite's ``check_contact`` decides by name, without a Python loop over the contacts."""
+    """Any contact between a geom of ``geoms_1`` and one of ``geoms_2`` (bool masks over the
+    model's geoms), as robosuite's ``check_contact`` decides by name, without a Python loop."""
     if not data.ncon:
         return False
     pairs = data.contact.geom
-    first, second = np.isin(pairs, geoms_1), np.isin(pairs, geoms_2)
+    first, second = geoms_1[pairs], geoms_2[pairs]
     return bool(np.any((first[:, 0] & second[:, 1]) | (first[:, 1] & second[:, 0])))

@@ -256,14 +256,16 @@ class RobosuiteSimulation:
         """robosuite's grasp test (a contact between each finger pad and the object) on geom
         ids and numpy: robosuite's loops over the contacts in Python, name by name."""
         model, gripper = self._model, self._robot.gripper[self._arm]
+
+        def mask(names: list[str]) -> np.ndarray:
+            chosen = np.zeros(model.ngeom, dtype=bool)
+            chosen[[model.geom(name).id for name in names]] = True
+            return chosen
+
         pads = [
-            np.array([model.geom(name).id for name in gripper.important_geoms[side]])
-            for side in ("left_fingerpad", "right_fingerpad")
+            mask(gripper.important_geoms[side]) for side in ("left_fingerpad", "right_fingerpad")
         ]
-        objects = {
-            obj.name: np.array([model.geom(name).id for name in obj.contact_geoms])
-            for obj in tasks.active_objects(self._env)
-        }
+        objects = {obj.name: mask(obj.contact_geoms) for obj in tasks.active_objects(self._env)}
 
         def grasped(obj: object) -> bool:
             geoms = objects[obj.name]  # type: ignore[attr-defined]
