@@ -43,6 +43,17 @@ class DriftResult:
 
 
 @dataclass(frozen=True)
+class RobosuiteDrift:
+    """Where plain robosuite (its own Python OSC) takes the hand, vs where ours went."""
+
+    steps: int
+    per_step_median_m: float  # each action stepped from its recorded state
+    per_step_max_m: float
+    open_loop_max_m: float  # all actions from the first state: the playback complaint
+    open_loop_final_m: float
+
+
+@dataclass(frozen=True)
 class ReplayResult:
     frames: int
     state_exact: bool  # every state read back bit for bit
@@ -122,10 +133,23 @@ class ReplayChecker:
             )
         return sim
 
+    def start(self, demo: Demo) -> Any:
+        """The simulation at the demo's first state, reset as its episode was.
+
+        ``reset_seed`` (if recorded) matters for ``osc-pose`` demos: robosuite's OSC pulls its
+        null space toward the episode's first joint posture, set at reset and not part of the
+        state, so without it one-step replay is not exact (the joint-velocity servo has no
+        such memory)."""
+        sim = self.simulation(demo)
+        seed = demo.metadata.get("reset_seed")
+        if isinstance(seed, int) and not isinstance(seed, bool):
+            sim.reset(seed=seed)
+        sim.set_state(demo.states[0])
+        return sim
+
     def action_drift(self, source: Demo | Episode) -> DriftResult:
         demo = source if isinstance(source, Demo) else _demo_of_episode(source)
-        sim = self.simulation(demo)
-        sim.set_state(demo.states[0])
+        sim = self.start(demo)
         errors, qpos_errors = [], []
         n_qpos = (demo.states.shape[1] - 1) // 2 + 1  # [time, qpos, qvel]: qpos may be longer
         for action, recorded in zip(demo.actions[:-1], demo.states[1:], strict=True):
@@ -140,6 +164,41 @@ class ReplayChecker:
             max_qpos_error=max(qpos_errors, default=0.0),
         )
 
+    def robosuite_drift(self, demo: Demo) -> RobosuiteDrift | None:
+        """Action replay in plain robosuite, for ``osc-pose`` demos (None for others: robosuite
+        has no controller that reads our joint-velocity actions the way our servo does)."""
+        if demo.metadata.get("action_mode") != "osc-pose":
+            return None
+        from crowdteleop.analysis.robosuite_replay import RobosuiteReplayer
+
+        sim = self.start(demo)
+        initial_joints = sim.robot_state().joint_positions.copy()
+        ours = []
+        for state, action in zip(demo.states, demo.actions, strict=True):
+            sim.set_state(state)
+            sim.step(action)
+            ours.append(sim.robot_state().end_effector.position.copy())
+        replayer = RobosuiteReplayer(
+            str(demo.metadata["task"]),
+            demo.model_xml,
+            str(demo.metadata.get("robot", "Sawyer")),
+            float(demo.metadata.get("control_hz", 20.0)),
+        )
+        try:
+            per_step = replayer.per_step(list(demo.states), demo.actions, initial_joints)
+            open_loop = replayer.open_loop(demo.states[0], demo.actions, initial_joints)
+        finally:
+            replayer.close()
+        step_error = np.linalg.norm(np.array(ours) - per_step, axis=1)
+        open_error = np.linalg.norm(np.array(ours) - open_loop, axis=1)
+        return RobosuiteDrift(
+            steps=len(demo.actions),
+            per_step_median_m=float(np.median(step_error)),
+            per_step_max_m=float(step_error.max()),
+            open_loop_max_m=float(open_error.max()),
+            open_loop_final_m=float(open_error[-1]),
+        )
+
     def replay(
         self,
         demo: Demo,
@@ -152,7 +211,7 @@ class ReplayChecker:
         """Set every recorded state (filmed to ``output`` if given), then measure drift."""
         from crowdteleop.data.video import Mp4Writer
 
-        sim = self.simulation(demo)
+        sim = self.start(demo)
         camera = camera or str(demo.metadata.get("camera") or "frontview")
         state_exact = step_exact = True
         max_step_error = 0.0

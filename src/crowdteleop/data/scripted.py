@@ -85,7 +85,8 @@ def record_scripted_episode(
 
     sim, teleop, control, metadata = rig
     extra = dict(extra_metadata or {})
-    recorder = EpisodeRecorder(directory, episode_id, metadata)
+    # reset_seed: replaying OSC actions needs the episode's reset (its null-space posture)
+    recorder = EpisodeRecorder(directory, episode_id, {**metadata, "reset_seed": seed})
     operator = ScriptedOperator(sim, control.mapping, seed=seed)
     step_once = teleop.step
     timing = {"step": 0.0, "record": 0.0, "step_cpu": 0.0, "record_cpu": 0.0}
