@@ -14,6 +14,7 @@ packages=(
 if [ "$profile" = "test" ]; then
   packages+=(
     postgresql   # the coordination server's database tests run against a real PostgreSQL
+    chromium     # the web pages' end-to-end tests (Playwright drives /usr/bin/chromium)
   )
 fi
 

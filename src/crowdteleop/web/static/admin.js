@@ -1,0 +1,48 @@
+// The admin page: live sessions, the queue, teleop servers and demonstration figures.
+
+import { call } from "./api.js";
+
+const $ = (id) => document.getElementById(id);
+
+function table(element, rows, columns) {
+  const head = `<tr>${columns.map(([, label]) => `<th>${label}</th>`).join("")}</tr>`;
+  const cell = (value) => (typeof value === "number" ? (Number.isInteger(value) ? value : value.toFixed(1)) : value ?? "–");
+  const body = rows.map((row) => `<tr>${columns.map(([key]) => `<td>${cell(row[key])}</td>`).join("")}</tr>`).join("");
+  element.innerHTML = head + (body || `<tr><td colspan="${columns.length}" class="muted">none</td></tr>`);
+}
+
+async function refresh(token) {
+  const o = await call("/api/admin/overview", { token });
+  $("totals").textContent = Object.entries(o.totals || {}).map(([k, v]) => `${k}: ${v}`).join(" · ")
+    + ` · capacity ${o.capacity}`;
+  const session = [["session_id", "session"], ["worker_id", "worker"], ["campaign", "campaign"],
+    ["state", "state"], ["task", "task"], ["controller", "controller"], ["interface", "interface"],
+    ["demos_done", "done"], ["demos_required", "required"]];
+  table($("sessions"), o.sessions, session);
+  table($("queue"), o.queue, [["queue_position", "position"], ...session]);
+  table($("servers"), o.teleop_servers, [["session_id", "session"], ["url", "url"], ["pid", "pid"], ["alive", "alive"]]);
+  const hours = o.demos_per_hour.map((h) => ({ ...h, hour: new Date(h.hour_start * 1000).toLocaleString() }));
+  table($("hours"), hours, [["hour", "hour"], ["episodes", "episodes"], ["successes", "successes"]]);
+  const summary = [["key", ""], ["successes", "successes"], ["episodes", "episodes"], ["mean_s", "mean s"],
+    ["median_s", "median s"], ["min_s", "min s"], ["max_s", "max s"]];
+  table($("per-worker"), o.completion_time_per_worker, summary);
+  table($("per-interface"), o.completion_time_per_interface, summary);
+}
+
+async function open(token) {
+  try {
+    await refresh(token);
+  } catch (error) {
+    $("banner").className = "banner error show";
+    $("banner").textContent = error.status === 401 ? "Wrong admin token." : error.message;
+    return;
+  }
+  sessionStorage.setItem("crowdteleop.admin", token);
+  $("login").hidden = true;
+  $("overview").hidden = false;
+  setInterval(() => refresh(token).catch(() => {}), 2000);
+}
+
+$("login").addEventListener("submit", (e) => { e.preventDefault(); open($("token").value); });
+const saved = sessionStorage.getItem("crowdteleop.admin");
+if (saved) open(saved);

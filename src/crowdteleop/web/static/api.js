@@ -1,0 +1,27 @@
+// The coordinator's HTTP API, as the pages use it. Errors carry the server's message.
+
+export class ApiError extends Error {
+  constructor(status, code, message) { super(message); this.status = status; this.code = code; }
+}
+
+export async function call(path, { method = "GET", token, body } = {}) {
+  const headers = { "Content-Type": "application/json" };
+  if (token) headers.Authorization = `Bearer ${token}`;
+  const response = await fetch(path, { method, headers, body: body && JSON.stringify(body) });
+  let payload = null;
+  try { payload = await response.json(); } catch { payload = null; }
+  if (!response.ok) {
+    const code = (payload && payload.error) || "http_error";
+    const message = (payload && payload.message) || `request failed (${response.status})`;
+    throw new ApiError(response.status, code, message);
+  }
+  return payload;
+}
+
+export const worker = {
+  load() {
+    const raw = sessionStorage.getItem("crowdteleop.worker");
+    return raw ? JSON.parse(raw) : null;
+  },
+  save(joined) { sessionStorage.setItem("crowdteleop.worker", JSON.stringify(joined)); },
+};

@@ -1,0 +1,244 @@
+// The worker's teleop page: get a robot (or a place in line), watch it, drive it.
+
+import { call, worker } from "./api.js";
+import { GamepadDevice, KEY_LEGEND, KeyboardDevice, SpaceMouseDevice, VRControllerDevice } from "./devices.js";
+import { loadProtocol } from "./protocol.js";
+import { TeleopConnection } from "./rtc.js";
+
+const $ = (id) => document.getElementById(id);
+const HEARTBEAT_MS = 5000;
+const SEND_HZ = 30;
+
+const page = {
+  view: null, connection: null, device: null, external: false, pairing: null,
+  devices: {}, lastCommand: null, ended: false,
+};
+window.crowdteleop = page;  // what the end-to-end tests and curious users can look at
+
+function banner(kind, text) {
+  const element = $("banner");
+  element.className = `banner ${kind} show`;
+  element.textContent = text;
+}
+function clearBanner() { $("banner").className = "banner"; }
+
+function formatSeconds(s) {
+  if (s === null || s === undefined) return "–";
+  const m = Math.floor(s / 60), r = Math.round(s % 60);
+  return `${m}:${String(r).padStart(2, "0")}`;
+}
+
+function showView(view) {
+  page.view = view;
+  $("queue").hidden = view.state !== "queued";
+  if (view.state === "queued") {
+    $("queue-position").textContent = view.queue_position;
+    $("queue-eta").textContent = formatSeconds(view.eta_s);
+  }
+  $("demos").textContent = `${view.demos_done} / ${view.demos_required}`;
+  $("instruction").textContent = view.instruction;
+  if (view.state === "starting") banner("info", "Starting your robot…");
+  if (view.completion_code) finish(view);
+  else if (view.state === "ended" && !page.ended) {
+    page.ended = true;
+    const why = { timeout: "Your session's time is up.", abandoned: "Your session expired.",
+                  left: "You left the session.", error: "Your robot stopped working. Please reload." };
+    banner("error", why[view.ended_reason] || "Your session has ended.");
+    if (page.connection) page.connection.close();
+  }
+}
+
+function finish(view) {
+  if (page.ended) return;
+  page.ended = true;
+  const done = $("done");
+  done.className = "banner done show";
+  done.innerHTML = "";
+  done.append("All demonstrations done, thank you! Your completion code: ");
+  const code = document.createElement("strong");
+  code.id = "completion-code";
+  code.textContent = view.completion_code;
+  done.append(code);
+  if (view.redirect_url) {
+    const link = document.createElement("a");
+    link.href = view.redirect_url;
+    link.textContent = " Return to Prolific";
+    done.append(link);
+    setTimeout(() => { location.href = view.redirect_url; }, 8000);
+  }
+  if (page.connection) page.connection.close();
+}
+
+async function heartbeat() {
+  if (!page.view || page.view.state === "ended") return;
+  try {
+    const kind = page.device ? page.device.kind : undefined;
+    showView(await call(`/api/sessions/${page.view.session_id}/heartbeat`, {
+      method: "POST", token: page.token, body: kind ? { interface: kind } : {} }));
+  } catch (error) {
+    banner("error", `Lost contact with the server: ${error.message}`);
+  }
+}
+
+async function waitUntilReady() {
+  while (page.view.state === "queued" || page.view.state === "starting") {
+    await new Promise((resolve) => setTimeout(resolve, 1000));
+    await heartbeat();
+  }
+}
+
+async function pairPhone() {
+  try {
+    const pairing = await call(`/api/sessions/${page.view.session_id}/pairing`, { method: "POST", token: page.token });
+    page.pairing = pairing;
+    $("pair-code").textContent = pairing.code;
+    $("phone-link").textContent = new URL(pairing.phone_url).origin + "/phone";
+    $("qr").src = `/qr.svg?text=${encodeURIComponent(pairing.phone_url)}`;
+    setTimeout(pairPhone, Math.max(5, pairing.expires_s - 10) * 1000);
+  } catch (error) {
+    if (!page.ended) $("pair-code").textContent = "–";
+  }
+}
+
+function useDevice(device) {
+  page.device = device;
+  page.connection.messages.device = device.kind;
+  page.connection.takeControl();
+}
+
+function controlLoop() {
+  let last = performance.now();
+  setInterval(() => {
+    const now = performance.now(), dt = (now - last) / 1000;
+    last = now;
+    if (!page.device || page.external || !page.connection) return;
+    const command = page.device.update(dt);
+    if (!command) return;
+    const key = JSON.stringify(command);
+    const busy = page.device.active === undefined || page.device.active;
+    if (busy || key !== page.lastCommand) {
+      const driver = page.connection.state.status && page.connection.state.status.controlling_device;
+      if (busy && driver && driver !== page.device.kind && now - (page.tookControlAt || 0) > 1000) {
+        page.connection.takeControl();  // pressing keys is asking to drive
+        page.tookControlAt = now;
+      }
+      page.connection.sendPose(command.position, command.quaternion, command.engaged, command.gripper);
+      page.lastCommand = key;
+    }
+  }, 1000 / SEND_HZ);
+}
+
+function showStatus() {
+  const c = page.connection;
+  c.addEventListener("status", ({ detail: s }) => {
+    $("timer").textContent = `${formatSeconds(s.elapsed_s)} / ${formatSeconds(s.time_limit_s)}`;
+    $("stage").textContent = s.message || s.stage || "–";
+    $("driver").textContent = s.controlling_device || "nobody";
+  });
+  c.addEventListener("saved", ({ detail }) => {
+    if (detail.outcome === "success") banner("info", "Demonstration saved. Thank you!");
+    heartbeat();
+  });
+  c.addEventListener("error", ({ detail }) => banner("error", detail.message));
+  c.addEventListener("connection", ({ detail }) => {
+    $("connection").textContent = detail.state;
+    if (["failed", "disconnected"].includes(detail.state) && !page.ended) {
+      banner("error", "Disconnected from your robot. Check your network; reload to reconnect.");
+    }
+  });
+  setInterval(() => {
+    const fps = c.fps(), latency = c.latencyMs(0.5);
+    $("fps").textContent = `${fps.toFixed(0)} fps`;
+    $("latency").textContent = latency === null ? "–" : `${latency.toFixed(0)} ms`;
+    // Judged on the round trip, not the frame rate: a still scene sends few frames on purpose.
+    const rtt = c.state.telemetry ? c.state.telemetry.rtt_ms : null;
+    const connected = c.pc.connectionState === "connected";
+    const quality = !connected ? "bad" : rtt !== null && rtt > 150 ? "fair" : "good";
+    $("quality").className = `dot ${quality}`;
+  }, 1000);
+}
+
+function wireButtons() {
+  const c = page.connection;
+  $("start").onclick = () => c.request("start");
+  $("reset").onclick = () => c.request("reset");
+  $("use-keyboard").onclick = () => useDevice(page.devices.keyboard);
+  $("use-gamepad").onclick = () => useDevice(page.devices.gamepad);
+  $("use-spacemouse").onclick = async () => {
+    try { await page.devices.spacemouse.open(); useDevice(page.devices.spacemouse); }
+    catch (error) { banner("error", `3D mouse: ${error.message}`); }
+  };
+  $("use-vr").onclick = async () => {
+    try {
+      useDevice(page.devices.vr);
+      await page.devices.vr.open(() => {});
+    } catch (error) { banner("error", `VR: ${error.message}`); }
+  };
+  for (const id of ["start", "reset", "use-keyboard", "use-gamepad", "use-spacemouse", "use-vr"]) $(id).disabled = false;
+  $("use-spacemouse").hidden = !SpaceMouseDevice.supported;
+  window.addEventListener("gamepadconnected", () => { $("use-gamepad").hidden = false; });
+  VRControllerDevice.supported().then((ok) => { $("use-vr").hidden = !ok; }).catch(() => {});
+}
+
+async function main() {
+  const joined = worker.load();
+  if (!joined) { location.replace(`/join${location.search}`); return; }
+  page.token = joined.worker_token;
+  $("legend").innerHTML = KEY_LEGEND.map(([k, what]) => `<kbd>${k}</kbd><span>${what}</span>`).join("");
+  if (!("RTCPeerConnection" in window)) {
+    banner("error", "This browser cannot show live video (no WebRTC). Please use a current Chrome, Firefox or Safari.");
+    return;
+  }
+  try {
+    await loadProtocol();
+    showView(await call("/api/sessions", { method: "POST", token: page.token }));
+  } catch (error) {
+    banner("error", error.status === 401 ? "Your link has expired: please open the study link again." : error.message);
+    return;
+  }
+  setInterval(heartbeat, HEARTBEAT_MS);
+  window.addEventListener("pagehide", () => {
+    if (page.view && page.view.state !== "ended") {
+      navigator.sendBeacon(`/api/sessions/${page.view.session_id}/leave?token=${encodeURIComponent(page.token)}`);
+    }
+  });
+  await waitUntilReady();
+  if (page.view.state !== "ready") return;
+  clearBanner();
+  const connection = new TeleopConnection({
+    offerUrl: `/api/sessions/${page.view.session_id}/offer`, authorization: `Bearer ${page.token}`,
+    device: "keyboard", iceServers: page.view.ice_servers,
+  });
+  page.connection = connection;
+  connection.addEventListener("track", ({ detail }) => { $("video").srcObject = detail.stream; });
+  connection.watchVideo($("video"));
+  showStatus();
+  try {
+    await connection.connect();
+  } catch (error) {
+    banner("error", `Could not connect to your robot: ${error.message}`);
+    return;
+  }
+  $("title").textContent = `Your robot: ${connection.state.hello.task}`;
+  page.devices = { keyboard: new KeyboardDevice(), gamepad: new GamepadDevice(),
+                   spacemouse: new SpaceMouseDevice(), vr: new VRControllerDevice() };
+  page.device = page.devices.keyboard;
+  wireButtons();
+  controlLoop();
+  pairPhone();
+  page.ready = true;
+}
+
+// For scripted drivers (tests, demos): commands that enter through this page's data channel
+// exactly as the keyboard's do. The keyboard stays quiet while a script drives.
+page.drive = (position, quaternion, engaged, gripper, seq) => {
+  page.external = true;
+  const driver = page.connection.state.status && page.connection.state.status.controlling_device;
+  if (driver && driver !== page.connection.messages.device && !page.tookControlForScript) {
+    page.connection.takeControl();
+    page.tookControlForScript = true;
+  }
+  return page.connection.sendPose(position, quaternion, engaged, gripper, seq);
+};
+
+main();

@@ -1,0 +1,244 @@
+"""A worker's whole visit, in real headless Chromium against a real coordinator, real teleop
+servers and real WebRTC: join, video, keyboard, phone, queue, completion, leaving."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+
+from crowdteleop.client.bot import Bot
+from crowdteleop.client.connection import TeleopClient
+from tests.coord_fixtures import ADMIN, coord_server
+from tests.web_browser import (
+    DOCS_SCREENSHOTS,
+    browser_context,
+    centre,
+    require_chromium,
+    touch,
+    video_fingerprint,
+    wait_js,
+)
+
+pytestmark = pytest.mark.slow
+
+JOIN = "/join?PROLIFIC_PID=worker-one&STUDY_ID=study-1&SESSION_ID=visit-1"
+CAMPAIGN = {
+    "name": "e2e",
+    "title": "Teach a robot arm",
+    "instructions": "Lift the cube.",
+    "demos_required": 1,
+    "time_limit_s": 600,
+}
+
+
+class ThroughPage:
+    """A `TeleopClient` look-alike for `Bot`: the privileged state comes from an admin client,
+    every command goes through the worker's page (its data channel), in order."""
+
+    def __init__(self, admin: TeleopClient, page: Any, first_seq: int) -> None:
+        self.admin, self.page, self.seq = admin, page, first_seq
+        self.state = admin.state
+        self.queue: asyncio.Queue = asyncio.Queue()
+        self.worker = asyncio.create_task(self._forward())
+
+    @property
+    def on_privileged(self):
+        return self.admin.on_privileged
+
+    @on_privileged.setter
+    def on_privileged(self, callback) -> None:
+        self.admin.on_privileged = callback
+
+    def send_pose(self, position, quaternion, engaged, gripper) -> int:
+        self.seq += 1
+        args = [
+            list(map(float, position)),
+            list(map(float, quaternion)),
+            engaged,
+            gripper,
+            self.seq,
+        ]
+        self.queue.put_nowait(("pose", args))
+        return self.seq
+
+    def request(self, kind: str) -> None:
+        self.queue.put_nowait(("request", kind))
+
+    async def _forward(self) -> None:
+        while True:
+            kind, args = await self.queue.get()
+            if kind == "pose":
+                await self.page.evaluate("(a) => window.crowdteleop.drive(...a)", args)
+            else:
+                await self.page.evaluate("(k) => window.crowdteleop.connection.request(k)", args)
+
+
+async def _join(context: Any, url: str, query: str = JOIN) -> Any:
+    page = await context.new_page()
+    await page.goto(url + query)
+    await page.check("#consent")
+    await page.click("#agree")
+    await page.wait_for_url("**/teleop")
+    return page
+
+
+async def _hand(page: Any) -> np.ndarray:
+    """The end-effector position the server last reported to the page."""
+    return np.array(await page.evaluate("crowdteleop.connection.state.status.end_effector"))
+
+
+def _admin_get(url: str, path: str) -> dict:
+    headers = {"Authorization": f"Bearer {ADMIN}"}
+    return httpx.get(f"{url}{path}", headers=headers, timeout=10).json()
+
+
+def _overview(url: str) -> dict:
+    headers = {"Authorization": f"Bearer {ADMIN}"}
+    return httpx.get(f"{url}/api/admin/overview", headers=headers, timeout=10).json()
+
+
+def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path):
+    require_chromium()
+    from playwright.async_api import async_playwright
+
+    with coord_server(tmp_path, capacity=1, campaigns=[CAMPAIGN]) as coord:
+
+        async def visit() -> dict:
+            results: dict[str, Any] = {}
+            async with (
+                async_playwright() as playwright,
+                browser_context(playwright) as desktop,
+                browser_context(playwright, mdns=False, mobile=True) as handset,
+                browser_context(playwright) as second_desktop,
+            ):
+                # 1. A new worker opens the study link and gets a robot.
+                page = await _join(desktop, coord.url)
+                await wait_js(page, "window.crowdteleop.ready === true", 150)
+                await wait_js(page, "window.crowdteleop.connection.framesShown > 10", 30)
+                results["frames"] = await page.evaluate(
+                    "document.getElementById('video').getVideoPlaybackQuality().totalVideoFrames"
+                )
+
+                # 2. Keys move the arm: the reported hand position and the picture change.
+                before = await _hand(page)
+                picture = np.array(await video_fingerprint(page))
+                await page.keyboard.down("r")
+                await asyncio.sleep(0.8)
+                await page.keyboard.up("r")
+                await asyncio.sleep(1.5)
+                after = await _hand(page)
+                results["keyboard_moved"] = after - before
+                results["picture_change"] = float(
+                    np.abs(np.array(await video_fingerprint(page)) - picture).mean()
+                )
+                DOCS_SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+                await page.screenshot(path=str(DOCS_SCREENSHOTS / "teleop-page.png"))
+
+                # 3. The phone pairs with the code the page shows and moves the arm.
+                code = await wait_js(
+                    page, "window.crowdteleop.pairing && window.crowdteleop.pairing.code"
+                )
+                phone = await handset.new_page()
+                cdp = await handset.new_cdp_session(phone)
+                await phone.goto(f"{coord.url}/phone")
+                # The phone's sensor reading, in place before the page starts listening.
+                await cdp.send(
+                    "DeviceOrientation.setDeviceOrientationOverride",
+                    {"alpha": 0, "beta": 0, "gamma": 0},
+                )
+                await phone.fill("#code", code)
+                await phone.click("#pair-form button")
+                await wait_js(phone, "window.crowdteleop.ready === true", 30)
+                # Like iOS Safari, this Chromium asks for motion permission from a tap.
+                await handset.grant_permissions(
+                    ["accelerometer", "gyroscope", "magnetometer"], origin=coord.url
+                )
+                if await phone.is_visible("#motion-permission"):
+                    await phone.click("#motion-permission")
+                await wait_js(phone, "window.crowdteleop.source === 'orientation'", 10)
+                before = await _hand(page)
+                clutch = await centre(phone, "#clutch")
+                lift_x, lift_y = await centre(phone, "#lift")
+                await touch(cdp, "touchStart", [clutch])
+                await asyncio.sleep(0.3)
+                await touch(cdp, "touchStart", [clutch, (lift_x, lift_y + 60)])
+                for step in range(1, 13):
+                    await touch(cdp, "touchMove", [clutch, (lift_x, lift_y + 60 - 10 * step)])
+                    await asyncio.sleep(0.05)
+                await cdp.send(
+                    "DeviceOrientation.setDeviceOrientationOverride",
+                    {"alpha": 20, "beta": 0, "gamma": 0},
+                )
+                await asyncio.sleep(1.5)
+                await touch(cdp, "touchEnd", [])
+                await asyncio.sleep(0.5)
+                after = await _hand(page)
+                results["phone_moved"] = after - before
+                results["driver"] = await page.evaluate(
+                    "crowdteleop.connection.state.status.controlling_device"
+                )
+                await phone.screenshot(path=str(DOCS_SCREENSHOTS / "phone-page.png"))
+
+                # 4. With capacity 1, a second worker waits in line.
+                waiting = await _join(
+                    second_desktop,
+                    coord.url,
+                    "/join?PROLIFIC_PID=worker-two&STUDY_ID=study-1&SESSION_ID=visit-2",
+                )
+                results["queue_position"] = await wait_js(
+                    waiting,
+                    "window.crowdteleop.view && window.crowdteleop.view.queue_position",
+                    20,
+                )
+
+                # 5. A scripted operator completes the task through the page's data channel;
+                #    the phone buzzes at the grasp; the completion code appears.
+                sid = await page.evaluate("crowdteleop.view.session_id")
+                access = _admin_get(coord.url, f"/api/admin/sessions/{sid}/teleop")
+                admin = TeleopClient(
+                    access["url"],
+                    access["token"],
+                    role="admin",
+                    admin_token=access["admin_token"],
+                    video=False,
+                )
+                await admin.connect()
+                first_seq = await page.evaluate("crowdteleop.connection.messages.seq")
+                Bot(ThroughPage(admin, page, first_seq), seed=3)
+                code_text = await wait_js(
+                    page, "document.getElementById('completion-code')?.textContent", 120
+                )
+                results["completion_code"] = code_text
+                results["phone_haptics"] = await phone.evaluate("window.crowdteleop.haptics")
+                await admin.close()
+
+                # 6. The first worker is done; the waiting one is admitted.
+                await wait_js(waiting, "window.crowdteleop.ready === true", 150)
+                results["second_admitted"] = True
+
+                # 7. Closing the tab frees the slot within 30 s.
+                await waiting.close()
+                started = time.monotonic()
+                while _overview(coord.url)["sessions"] and time.monotonic() - started < 30:
+                    await asyncio.sleep(0.5)
+                results["freed_after_s"] = time.monotonic() - started
+                results["live_after_close"] = len(_overview(coord.url)["sessions"])
+            return results
+
+        results = asyncio.run(asyncio.wait_for(visit(), 600))
+
+    assert results["frames"] > 10
+    assert results["keyboard_moved"][2] > 0.05, "holding R raises the hand"
+    assert results["picture_change"] > 0.5, "and the picture shows it"
+    assert results["driver"] == "phone"
+    assert results["phone_moved"][2] > 0.03, "dragging the lift pad up raises the hand"
+    assert results["queue_position"] == 1
+    assert len(results["completion_code"]) >= 6
+    assert results["phone_haptics"] > 0, "the phone buzzed when the gripper touched the cube"
+    assert results["second_admitted"]
+    assert results["live_after_close"] == 0 and results["freed_after_s"] < 30
