@@ -138,7 +138,7 @@ function wireControls() {
     // Stream only while this phone drives (or is being pressed into driving): another device
     // may hold the arm, and switching is the clutch press's explicit take_control.
     const driver = c.state.status && c.state.status.controlling_device;
-    if (phone.engaged || driver === "phone" || driver === null) {
+    if (phone.engaged || driver === "phone") {
       c.sendPose(phone.position, phone.quaternion, phone.engaged, phone.gripper);
     }
   }, 1000 / SEND_HZ);
