@@ -140,6 +140,7 @@ def coord_config(tmp_path: Path, database_url: str | None = None, **fields: Any)
         "admin_token": ADMIN,
         "public_url": "http://testserver",
         "reaper_interval_s": 0.2,
+        "spare_servers": 0,  # tests of spares ask for them
     }
     values.update(fields)
     return CoordConfig.model_validate(values)
@@ -228,7 +229,7 @@ def coord_server(tmp_path: Path, *args: str, **config: Any) -> Iterator[CoordPro
     data_dir = tmp_path / "coord"
     data_dir.mkdir(parents=True, exist_ok=True)
     config_path = data_dir / "coord.json"
-    config_path.write_text(json.dumps({"reaper_interval_s": 0.5, **config}))
+    config_path.write_text(json.dumps({"reaper_interval_s": 0.5, "spare_servers": 0, **config}))
     log_path = data_dir / "coord.log"
     log_file = log_path.open("w")
     command = [sys.executable, "-m", "crowdteleop", "serve", "--port", "0"]

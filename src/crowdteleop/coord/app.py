@@ -72,7 +72,13 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
     @app.get("/health", tags=["server"])
     async def health(request: Request) -> dict[str, Any]:
         coordinator: Coordinator = request.app.state.coordinator
-        return {"status": "ok", "capacity": config.capacity, "busy": len(coordinator.pool.slots)}
+        spares = sum(len(ready) for ready in coordinator.spares.ready.values())
+        return {
+            "status": "ok",
+            "capacity": config.capacity,
+            "busy": len(coordinator.pool.slots),
+            "spares": spares,
+        }
 
     return app
 

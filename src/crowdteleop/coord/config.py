@@ -19,6 +19,13 @@ class CoordConfig(BaseModel):
     data_dir: Path = Field(Path("data"), description="episodes, teleop configs and logs")
     campaigns: list[CampaignConfig] = Field(default_factory=lambda: [CampaignConfig()])
     capacity: int = Field(2, ge=1, le=256, description="teleop servers running at once")
+    spare_servers: int = Field(
+        1,
+        ge=0,
+        le=16,
+        description="warm teleop servers kept ready per (task, robot, controller), so a worker "
+        "sees the robot in about a second instead of waiting for a simulation to build",
+    )
     admin_token: str = Field(min_length=16, max_length=256)
     public_url: str = Field(
         "http://127.0.0.1:8000", description="base URL phones and browsers reach us at"

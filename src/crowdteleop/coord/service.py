@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import secrets
 import time
 from typing import Any
 
@@ -19,6 +20,7 @@ from crowdteleop.coord.pool import TeleopPool
 from crowdteleop.coord.queue import expected_remaining_s, mean_session_s, queue_etas
 from crowdteleop.coord.schemas import EpisodeAck, EpisodeReport, SessionView
 from crowdteleop.coord.security import new_completion_code, new_id, new_token, token_hash
+from crowdteleop.coord.spares import SpareKey, SparePool
 from crowdteleop.coord.store import Store
 from crowdteleop.coord.tables import Episode, Session, Worker
 from crowdteleop.teleop.config import TeleopConfig
@@ -39,11 +41,25 @@ def deep_merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
     return merged
 
 
+def _assignment(config: TeleopConfig) -> dict[str, Any]:
+    """What a warm spare needs to become the server of the session `config` describes."""
+    return {
+        "session_id": config.session_id,
+        "worker_id": config.worker_id,
+        "token": config.token,
+        "admin_token": config.admin_token,
+        "recording_directory": str(config.recording.directory),
+        "report_url": config.report_url,
+        "report_token": config.report_token,
+    }
+
+
 class Coordinator:
     def __init__(self, config: CoordConfig, store: Store, launcher: Launcher) -> None:
         self.config = config
         self.store = store
         self.pool = TeleopPool(launcher, config.capacity)
+        self.spares = SparePool(launcher, self._spare_config, config.spare_servers)
         self.lock = asyncio.Lock()
         self._launches: dict[str, asyncio.Task[None]] = {}
         self._mean: tuple[float, float] | None = None  # (computed at, value)
@@ -55,6 +71,7 @@ class Coordinator:
         await self.store.save_campaigns(self.config.campaigns)
         for session in await self.store.live_sessions():
             await self._mark_ended(session.id, "error", error="coordinator restarted")
+        self.spares.fill(self._spare_keys())
 
     async def close(self) -> None:
         """Stop every teleop server; live sessions end with reason 'error' (shutdown)."""
@@ -67,6 +84,7 @@ class Coordinator:
             for session in await self.store.live_sessions():
                 await self._mark_ended(session.id, "error", error="coordinator shut down")
                 self.pool.release(session.id)
+        await self.spares.close()
         await self.pool.close()
 
     # --- sessions -------------------------------------------------------------------------
@@ -124,7 +142,11 @@ class Coordinator:
         await self.store.update_session(session_id, report_token_hash=token_hash(report_token))
         try:
             config = self.teleop_config(session, report_token)
-            handle = await self.pool.launcher.start(config)
+            key = (session.task, session.robot, session.controller)
+            handle = await self.spares.take(key, _assignment(config))
+            self.spares.fill([key])  # replace the spare (or start one for next time)
+            if handle is None:
+                handle = await self.pool.launcher.start(config)
         except asyncio.CancelledError:
             raise
         except (LaunchError, ValueError, OSError) as exc:
@@ -169,6 +191,45 @@ class Coordinator:
                 "ice_servers": list(self.config.ice_servers),
                 "report_url": f"{self.config.report_base_url}/internal/episodes",
                 "report_token": report_token,
+            },
+        )
+        return TeleopConfig.model_validate(fields)
+
+    def _spare_keys(self) -> list[SpareKey]:
+        """The (task, robot, controller) combinations the campaigns hand out, round-robin."""
+        keys: list[SpareKey] = []
+        for campaign in self.config.campaigns:
+            lists = (campaign.tasks, campaign.robots, campaign.controllers)
+            for n in range(max(len(items) for items in lists)):
+                key = tuple(items[n % len(items)] for items in lists)
+                if key not in keys:
+                    keys.append(key)  # type: ignore[arg-type]
+        return keys
+
+    def _spare_config(self, key: SpareKey) -> TeleopConfig:
+        """A spare's config: the simulation of `key`, a placeholder identity (standby)."""
+        from crowdteleop.control.config import ACTION_MODE_FOR_CONTROLLER
+
+        task, robot, controller = key
+        spare_id = f"spare-{secrets.token_hex(6)}"
+        fields = deep_merge(
+            self.config.teleop,
+            {
+                "session_id": spare_id,
+                "worker_id": "unassigned",
+                "token": new_token(),
+                "admin_token": new_token(),
+                "standby": True,
+                "sim": {
+                    "task": task,
+                    "robot": robot,
+                    "action_mode": ACTION_MODE_FOR_CONTROLLER[controller],
+                },
+                "control": {"controller": controller},
+                "recording": {
+                    "directory": str((self.config.data_dir / "spares" / spare_id).resolve())
+                },
+                "ice_servers": list(self.config.ice_servers),
             },
         )
         return TeleopConfig.model_validate(fields)

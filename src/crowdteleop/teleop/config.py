@@ -120,6 +120,9 @@ class TeleopConfig(BaseModel):
         None, description="the coordination server's URL for episode reports (POST JSON)"
     )
     report_token: str | None = Field(None, min_length=8, description="bearer token for reports")
+    standby: bool = Field(
+        False, description="a warm spare: refuses offers until POST /assign gives it a session"
+    )
     time_limit_s: float | None = Field(None, gt=0, description="default: the task's limit")
     success_hold_steps: int = Field(10, ge=1, description="as robosuite's demo collector")
     telemetry_interval_s: float = Field(1.0, gt=0)

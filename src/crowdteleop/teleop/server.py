@@ -22,6 +22,7 @@ from aiortc import (
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from crowdteleop.data.recording import recover_orphans
+from crowdteleop.teleop.assign import Assignment, assigned_config
 from crowdteleop.teleop.clock import FixedRateClock
 from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.dispatch import Dispatcher
@@ -87,6 +88,7 @@ class TeleopServer:
                 web.get("/health", self.handle_health),
                 web.get("/telemetry", self.handle_telemetry),
                 web.get("/protocol.json", self.handle_protocol),
+                web.post("/assign", self.handle_assign),
             ]
         )
         self.app.on_startup.append(lambda _app: self.start())
@@ -127,6 +129,8 @@ class TeleopServer:
             offer = OfferRequest.model_validate_json(await request.read())
         except ValidationError as exc:
             return self._http_error(400, "invalid_offer", str(exc.errors()[0]["msg"]))
+        if self.config.standby:
+            return self._http_error(409, "standby", "this server has no session yet")
         if not hmac.compare_digest(offer.token.encode(), self.config.token.encode()):
             return self._http_error(401, "bad_token", "the session token is wrong")
         if offer.role == "admin" and not (
@@ -257,6 +261,25 @@ class TeleopServer:
         if not self.config.admin_token or not hmac.compare_digest(given, expected):
             return self._http_error(401, "bad_admin_token", "telemetry needs the admin token")
         return web.json_response({**self.telemetry_snapshot(), "stored": self.stored})
+
+    async def handle_assign(self, request: web.Request) -> web.Response:
+        """Give a warm spare its session (`teleop/assign.py`)."""
+        given = request.headers.get("Authorization", "")
+        if not self.config.admin_token or not hmac.compare_digest(
+            given, f"Bearer {self.config.admin_token}"
+        ):
+            return self._http_error(401, "bad_admin_token", "assigning needs the admin token")
+        if not self.config.standby:
+            return self._http_error(409, "assigned", "this server already has its session")
+        try:
+            assignment = Assignment.model_validate_json(await request.read())
+            config = assigned_config(self.config, assignment)
+        except ValidationError as exc:
+            return self._http_error(400, "invalid_assignment", str(exc.errors()[0]["msg"]))
+        self.config = config
+        self.session.assign(config)
+        log.info("assigned to session %s", config.session_id)
+        return web.json_response({"session_id": config.session_id})
 
     async def handle_protocol(self, _request: web.Request) -> web.Response:
         return web.json_response(json_schema())

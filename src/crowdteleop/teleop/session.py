@@ -18,7 +18,7 @@ import numpy as np
 
 from crowdteleop.control.teleoperator import Teleoperator
 from crowdteleop.data.recording import StepRecord
-from crowdteleop.data.storage import EpisodeStorage, LocalDirectoryStorage
+from crowdteleop.data.storage import EpisodeStorage
 from crowdteleop.sim.factory import make_simulation
 from crowdteleop.sim.registry import get_task
 from crowdteleop.sim.types import ContactEvent, Pose, TaskProgress
@@ -72,7 +72,7 @@ class TeleopSession:
     def __init__(self, config: TeleopConfig, executor: ThreadPoolExecutor) -> None:
         self.config = config
         self.board = CommandBoard()
-        self.storage: EpisodeStorage = LocalDirectoryStorage(config.recording.directory)
+        self.storage: EpisodeStorage = config.recording.open_storage()
         self.task = get_task(config.sim.task)
         self._executor = executor
         self._haptics = _HapticFilter()
@@ -110,6 +110,7 @@ class TeleopSession:
             "sim_config": self.config.sim.model_dump(mode="json"),
             "control_config": self.config.control.model_dump(mode="json"),
             "model_xml": sim.mjcf_xml(),
+            "reset_seed": self._seed,
             "env_args": {
                 "env_name": self.task.env_name,
                 "type": 1,
@@ -124,6 +125,15 @@ class TeleopSession:
             metadata=metadata,
             flush_interval_s=self.config.recording.flush_interval_s,
         )
+
+    def assign(self, config: TeleopConfig) -> None:
+        """Take a session's identity (a warm spare being handed to a worker): recordings from
+        now on carry the new ids and go to the new directory."""
+        self.config = config
+        self._close_storage()
+        self.storage = config.recording.open_storage()
+        self.tracker.metadata.update(session_id=config.session_id, worker_id=config.worker_id)
+        self.tracker.recordings = config.recording.directory / "incoming"
 
     @property
     def control_hz(self) -> float:
@@ -172,9 +182,7 @@ class TeleopSession:
                 needs_reset = True
         self._pending.clear()
         if needs_reset:
-            self._seed += 1
-            await self._in_sim_thread(self.teleop.reset, self._seed)
-            self.board.release_clutch()
+            await self._in_sim_thread(self._reset_scene)
 
     # --- the control step ------------------------------------------------------------------
 
@@ -220,9 +228,7 @@ class TeleopSession:
             )
             if outcome is not None:
                 self._end(outcome)
-                self._seed += 1
-                self.teleop.reset(self._seed)
-                self.board.release_clutch()
+                self._reset_scene()
         video = self.config.video
         image = sim.render(video.camera, video.width, video.height)
         changed = self._last_image is None or image is not self._last_image
@@ -242,10 +248,30 @@ class TeleopSession:
             step_index=self.tracker.steps,
         )
 
+    def _reset_scene(self) -> None:
+        """A fresh scene with the next seed (simulation thread). The seed goes into the next
+        episode's metadata: osc episodes re-simulate exactly only from a reset with it."""
+        self._seed += 1
+        self.teleop.reset(self._seed)
+        self.tracker.metadata["reset_seed"] = self._seed
+        self.board.release_clutch()
+
+    def _close_storage(self) -> None:
+        close = getattr(self.storage, "close", None)  # a spooled S3 store has an upload thread
+        if close is not None:
+            close()
+
     async def store(self, finished: FinishedEpisode, telemetry: dict[str, Any]) -> str | None:
         """Finalize and store an episode's recording in a worker thread."""
+        storage = self.config.recording.storage
         return await asyncio.to_thread(
-            store_episode, finished, self.storage, self.config.recording.keep_failed, telemetry
+            store_episode,
+            finished,
+            self.storage,
+            self.config.recording.keep_failed,
+            telemetry,
+            storage.saved_when,
+            storage.store_wait_s,
         )
 
     async def close(self) -> None:
@@ -255,6 +281,7 @@ class TeleopSession:
             await self.store(finished, {})
         await self._in_sim_thread(self.teleop.sim.close)
         self._executor.shutdown(wait=True)
+        self._close_storage()
 
 
 def _privileged(sim: Any) -> dict[str, Any]:

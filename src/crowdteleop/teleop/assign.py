@@ -1,0 +1,47 @@
+"""Warm spares: a teleop server started before its worker arrives, then given its session.
+
+Building a simulation takes seconds (robosuite model, fast renderer, IK model); a worker who
+clicks start should see the robot at once. So the coordinator keeps spare servers running,
+each with its task, robot and controller but a placeholder identity, and hands one to a session
+with `POST /assign`: new ids, new tokens, where to record and whom to report to.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from crowdteleop.teleop.config import TeleopConfig
+
+
+class Assignment(BaseModel):
+    """Authorized by the spare's current admin token; after it, only the new tokens work."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    session_id: str = Field(min_length=1, max_length=128)
+    worker_id: str = Field(min_length=1, max_length=128)
+    token: str = Field(min_length=8, max_length=256)
+    admin_token: str = Field(min_length=8, max_length=256)
+    recording_directory: Path
+    report_url: str | None = None
+    report_token: str | None = Field(None, min_length=8, max_length=256)
+
+
+def assigned_config(config: TeleopConfig, assignment: Assignment) -> TeleopConfig:
+    """`config` with the session's identity: everything else (the simulation) stays."""
+    recording = config.recording.model_copy(update={"directory": assignment.recording_directory})
+    return TeleopConfig.model_validate(
+        {
+            **config.model_dump(),
+            "session_id": assignment.session_id,
+            "worker_id": assignment.worker_id,
+            "token": assignment.token,
+            "admin_token": assignment.admin_token,
+            "recording": recording.model_dump(),
+            "report_url": assignment.report_url,
+            "report_token": assignment.report_token,
+            "standby": False,
+        }
+    )
