@@ -177,7 +177,8 @@ class TeleopServer:
                 peer.track = SimVideoTrack(self.frames)
                 video = pc.addTransceiver(peer.track, direction="sendonly")
                 self._prefer_codec(video)
-            await pc.setRemoteDescription(RTCSessionDescription(offer.sdp, offer.type))
+            sdp = without_mdns_candidates(offer.sdp)
+            await pc.setRemoteDescription(RTCSessionDescription(sdp, offer.type))
             await pc.setLocalDescription(await pc.createAnswer())
         except Exception:
             await self._drop(peer)
@@ -461,6 +462,19 @@ class TeleopServer:
         if now > then and total >= previous:
             self.telemetry.bitrate_kbps = (total - previous) * 8 / 1000 / (now - then)
         self._bytes_mark = (total, now)
+
+
+def without_mdns_candidates(sdp: str) -> str:
+    """Drop the browser's mDNS (``*.local``) host candidates from an offer.
+
+    Browsers hide local addresses behind mDNS names; aioice resolves each one before the answer
+    is made, which costs about a second (and fails where multicast does not pass). Without them
+    the connection still forms: the browser checks our candidates, and its address is learnt from
+    those checks (a peer-reflexive candidate), as the ICE standard provides.
+    """
+    lines = sdp.split("\r\n")
+    kept = [line for line in lines if not (line.startswith("a=candidate:") and ".local " in line)]
+    return "\r\n".join(kept)
 
 
 async def serve(config: TeleopConfig, host: str = "127.0.0.1", port: int = 0) -> None:

@@ -50,7 +50,7 @@ export class TeleopConnection extends EventTarget {
                    episodes: [], errors: [] };
   }
 
-  async connect(timeoutMs = 20000) {
+  async connect(timeoutMs = 20000, timeline = {}) {
     this.control = this.pc.createDataChannel("control", { ordered: false, maxRetransmits: 0 });
     this.events = this.pc.createDataChannel("events");
     this.events.onmessage = (event) => this.#onMessage(event.data);
@@ -61,6 +61,7 @@ export class TeleopConnection extends EventTarget {
     this.pc.onconnectionstatechange = () => this.#emit("connection", { state: this.pc.connectionState });
     await this.pc.setLocalDescription(await this.pc.createOffer());
     await this.#iceGathered(3000);  // aiortc takes no trickled candidates: send them all at once
+    timeline.gathered = Date.now();
     const response = await fetch(this.offerUrl, {
       method: "POST",
       headers: { "Content-Type": "application/json", Authorization: this.authorization },
@@ -70,11 +71,13 @@ export class TeleopConnection extends EventTarget {
     if (!response.ok) {
       throw new Error(answer.message || `the server refused the connection (${response.status})`);
     }
+    timeline.answered = Date.now();
     await this.pc.setRemoteDescription({ sdp: answer.sdp, type: answer.type });
     await new Promise((resolve, reject) => {
       const timer = setTimeout(() => reject(new Error("the robot did not answer in time")), timeoutMs);
       this.addEventListener("hello", () => { clearTimeout(timer); resolve(); }, { once: true });
     });
+    timeline.hello = Date.now();
     this.latencyTimer = setInterval(() => this.#reportLatency(), 1000);
   }
 
@@ -117,6 +120,7 @@ export class TeleopConnection extends EventTarget {
   watchVideo(videoElement) {
     if (!("requestVideoFrameCallback" in HTMLVideoElement.prototype)) return;
     const onFrame = (now, metadata) => {
+      if (this.framesShown === 0) this.firstFrameAt = Date.now();  // wall clock, for benchmarks
       this.framesShown += 1;
       this.frameTimes.push(now);
       if (this.frameTimes.length > 60) this.frameTimes.shift();

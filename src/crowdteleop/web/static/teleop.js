@@ -12,6 +12,7 @@ const SEND_HZ = 30;
 const page = {
   view: null, connection: null, device: null, external: false, pairing: null,
   devices: {}, lastCommand: null, ended: false,
+  timeline: { loaded: Date.now() },  // wall-clock marks of the way to the first frame
 };
 window.crowdteleop = page;  // what the end-to-end tests and curious users can look at
 
@@ -82,7 +83,8 @@ async function heartbeat() {
 
 async function waitUntilReady() {
   while (page.view.state === "queued" || page.view.state === "starting") {
-    await new Promise((resolve) => setTimeout(resolve, 1000));
+    // A warm spare is handed over in well under a second: look often while starting.
+    await new Promise((resolve) => setTimeout(resolve, page.view.state === "starting" ? 200 : 1000));
     await heartbeat();
   }
 }
@@ -192,6 +194,7 @@ async function main() {
   try {
     await loadProtocol();
     showView(await call("/api/sessions", { method: "POST", token: page.token }));
+    page.timeline.session = Date.now();
   } catch (error) {
     banner("error", error.status === 401 ? "Your link has expired: please open the study link again." : error.message);
     return;
@@ -204,6 +207,7 @@ async function main() {
   });
   await waitUntilReady();
   if (page.view.state !== "ready") return;
+  page.timeline.ready = Date.now();
   clearBanner();
   const connection = new TeleopConnection({
     offerUrl: `/api/sessions/${page.view.session_id}/offer`, authorization: `Bearer ${page.token}`,
@@ -214,7 +218,7 @@ async function main() {
   connection.watchVideo($("video"));
   showStatus();
   try {
-    await connection.connect();
+    await connection.connect(20000, page.timeline);
   } catch (error) {
     banner("error", `Could not connect to your robot: ${error.message}`);
     return;
