@@ -64,6 +64,7 @@ def serve(
     from rich.console import Console
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s %(message)s")
+    logging.getLogger("alembic").setLevel(logging.WARNING)  # a line per plugin, each start
     err = Console(stderr=True)
     options = ServeOptions(
         host=host,
