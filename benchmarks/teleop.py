@@ -37,7 +37,21 @@ STREAM_HZ = 60.0  # the bot streams its pose like a phone (WebXR / DeviceOrienta
 # --- the client process -------------------------------------------------------------------
 
 
-async def _client(url: str, decode: bool, warmup: float, seconds: float) -> dict:
+async def _circle(client, hz: float) -> None:
+    """A worker's hand tracing a 6 cm circle (2 s period) with the clutch held: the arm and the
+    picture move all the time, and nothing privileged is needed (no admin channel)."""
+    import math
+
+    started = time.monotonic()
+    while True:
+        phase = 2 * math.pi * (time.monotonic() - started) / 2.0
+        radius = 0.03 * min(1.0, (time.monotonic() - started) / 1.0)
+        position = (0.0, radius * math.cos(phase) - radius, radius * math.sin(phase))
+        client.send_pose(position, (0.0, 0.0, 0.0, 1.0), True, False)
+        await asyncio.sleep(1.0 / hz)
+
+
+async def _client(url: str, decode: bool, warmup: float, seconds: float, circle: bool) -> dict:
     if not decode:
         from crowdteleop.client.counting import disable_decoding
 
@@ -45,10 +59,15 @@ async def _client(url: str, decode: bool, warmup: float, seconds: float) -> dict
     from crowdteleop.client.bot import Bot
     from crowdteleop.client.connection import TeleopClient
 
-    client = TeleopClient(url, TOKEN, role="admin", admin_token=ADMIN)
-    bot = Bot(client, seed=os.getpid())
-    await client.connect()
-    streaming = asyncio.create_task(bot.stream(STREAM_HZ))
+    if circle:
+        client = TeleopClient(url, TOKEN, role="worker", device="phone")
+        await client.connect()
+        streaming = asyncio.create_task(_circle(client, STREAM_HZ))
+    else:
+        client = TeleopClient(url, TOKEN, role="admin", admin_token=ADMIN)
+        bot = Bot(client, seed=os.getpid())
+        await client.connect()
+        streaming = asyncio.create_task(bot.stream(STREAM_HZ))
     await asyncio.sleep(warmup)
     me = psutil.Process()
     cpu0, frames0, lat0 = (
@@ -229,9 +248,12 @@ def main() -> None:
     parser.add_argument("--client")
     parser.add_argument("--decode", action="store_true")
     parser.add_argument("--count", action="store_true")
+    parser.add_argument("--circle", action="store_true", help="client: a worker tracing a circle")
     args = parser.parse_args()
     if args.client:
-        result = asyncio.run(_client(args.client, args.decode, args.warmup, args.seconds))
+        result = asyncio.run(
+            _client(args.client, args.decode, args.warmup, args.seconds, args.circle)
+        )
         print("BENCH-CLIENT " + json.dumps(result), flush=True)
         return
 
