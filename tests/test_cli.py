@@ -37,3 +37,48 @@ def test_tasks_lists_the_papers_tasks():
     assert run.returncode == 0
     for name in ("lift", "pick-place-can", "nut-assembly-round"):
         assert name in run.stdout
+
+
+def test_the_bot_command_completes_an_episode_through_a_teleop_server(tmp_path):
+    import subprocess
+    import sys
+
+    from tests.teleop_process import ADMIN_TOKEN, TOKEN, teleop_server
+
+    with teleop_server(tmp_path) as server:
+        result = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "crowdteleop",
+                "bot",
+                "--url",
+                server.url,
+                "--token",
+                TOKEN,
+                "--admin-token",
+                ADMIN_TOKEN,
+                "--episodes",
+                "1",
+                "--timeout",
+                "120",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=180,
+        )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "1/1 episodes succeeded (success)" in result.stdout
+
+
+def test_the_bot_needs_the_admin_token():
+    import subprocess
+    import sys
+
+    result = subprocess.run(
+        [sys.executable, "-m", "crowdteleop", "bot", "--url", "http://127.0.0.1:9"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2 and "--admin-token" in result.stdout
