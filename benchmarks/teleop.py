@@ -31,7 +31,7 @@ TOKEN = "bench-token-1"
 ADMIN = "bench-admin-1"
 ON_TIME = 0.95
 MIN_FPS = 18.0
-STREAM_HZ = 60.0  # the bot streams its pose like a phone (WebXR / DeviceOrientation rate)
+STREAM_HZ = 30.0  # the bot streams its pose as the phone page does (web/static/phone.js)
 
 
 # --- the client process -------------------------------------------------------------------
