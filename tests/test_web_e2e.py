@@ -196,6 +196,20 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path):
                     20,
                 )
 
+                # The admin page shows the live session and the waiting worker.
+                admin_page = await second_desktop.new_page()
+                await admin_page.goto(f"{coord.url}/admin")
+                await admin_page.fill("#token", ADMIN)
+                await admin_page.click("#login button")
+                await admin_page.wait_for_selector("#overview:not([hidden])")
+                await admin_page.wait_for_function(
+                    "document.querySelectorAll('#sessions tr').length > 1"
+                    " && document.querySelectorAll('#queue tr').length > 1"
+                )
+                results["admin_sessions"] = await admin_page.inner_text("#sessions")
+                await admin_page.screenshot(path=str(DOCS_SCREENSHOTS / "admin-page.png"))
+                await admin_page.close()
+
                 # 5. A scripted operator completes the task through the page's data channel;
                 #    the phone buzzes at the grasp; the completion code appears.
                 sid = await page.evaluate("crowdteleop.view.session_id")
@@ -238,6 +252,7 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path):
     assert results["driver"] == "phone"
     assert results["phone_moved"][2] > 0.03, "dragging the lift pad up raises the hand"
     assert results["queue_position"] == 1
+    assert "worker" in results["admin_sessions"] and "ready" in results["admin_sessions"]
     assert len(results["completion_code"]) >= 6
     assert results["phone_haptics"] > 0, "the phone buzzed when the gripper touched the cube"
     assert results["second_admitted"]

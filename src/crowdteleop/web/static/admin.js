@@ -21,7 +21,7 @@ async function refresh(token) {
   table($("sessions"), o.sessions, session);
   table($("queue"), o.queue, [["queue_position", "position"], ...session]);
   table($("servers"), o.teleop_servers, [["session_id", "session"], ["url", "url"], ["pid", "pid"], ["alive", "alive"]]);
-  const hours = o.demos_per_hour.map((h) => ({ ...h, hour: new Date(h.hour_start * 1000).toLocaleString() }));
+  const hours = o.demos_per_hour.slice().reverse().map((h) => ({ ...h, hour: new Date(h.hour_start * 1000).toLocaleString() }));
   table($("hours"), hours, [["hour", "hour"], ["episodes", "episodes"], ["successes", "successes"]]);
   const summary = [["key", ""], ["successes", "successes"], ["episodes", "episodes"], ["mean_s", "mean s"],
     ["median_s", "median s"], ["min_s", "min s"], ["max_s", "max s"]];
