@@ -28,7 +28,9 @@ from crowdteleop.errors import InvalidResolutionError, UnknownCameraError
 from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.sim.fastrender import FastSceneRenderer, SimplifyParams
 from crowdteleop.sim.fastrender import simplify as simplify_module
-from crowdteleop.sim.fastrender.compositor import may_show
+from crowdteleop.sim.fastrender.compositor import PARK_AFTER_FRAMES, may_show
+from crowdteleop.sim.fastrender.layers import MOVING
+from crowdteleop.sim.fastrender.textures import textures_used
 from crowdteleop.sim.rendering import CameraRenderer
 from tests.helpers import arm_motion
 
@@ -154,6 +156,54 @@ def test_restoring_a_state_reproduces_the_frame_bit_for_bit(sim):
     sim.set_state(saved)
     assert np.array_equal(sim.render("frontview", 480, 360), frame)
     assert renderer.renders_performed == performed + 1, "re-rendered, not served from cache"
+
+
+def test_background_only_textures_leave_gl_and_come_back_bit_for_bit(sim):
+    """Textures only the cached background samples are parked between background draws
+    (textures.py, ~70 MiB per simulation); a new background brings them back unchanged."""
+    compositor = sim._renderer._compositor
+    residency = compositor._textures
+    sim.reset(seed=7)
+    for index in range(PARK_AFTER_FRAMES + 1):  # composited frames in a row
+        sim.step(arm_motion(sim, index))
+        sim.render("frontview", 320, 240)
+    parked = residency.parked
+    assert parked, "table, walls, floor and skybox textures are parked"
+    moving = textures_used(
+        sim._renderer.render_model,
+        compositor._layers.geom_layer == MOVING,
+        compositor._layers.site_layer == MOVING,
+        tendons=True,
+    )
+    assert not parked & set(np.flatnonzero(moving)), "what moving parts wear stays in GL"
+    first = sim.render("frontview", 320, 240)
+    uploads = residency.uploads
+    compositor._backgrounds.clear()  # the next frame draws its background again
+    sim._renderer._frames.clear()
+    again = sim.render("frontview", 320, 240)
+    assert residency.uploads == uploads + len(parked), "uploaded again for the background"
+    assert np.array_equal(again, first)
+    assert residency.parked == parked, "and parked again after it"
+
+
+def test_the_shadow_map_is_made_only_when_a_light_casts_shadows(sim, reference):
+    """robosuite's lights cast no shadows, so the GL context has no shadow map (4096^2 depth
+    texels, 64 MiB); a light that starts casting shadows gets one (and one-pass frames)."""
+    compositor = sim._renderer._compositor
+    sim.reset(seed=8)
+    sim.render("frontview", 320, 240)
+    assert compositor._context.shadowSize == 0
+    lights = sim._model.light_castshadow
+    saved = lights.copy()
+    try:
+        lights[:] = 1
+        ours = sim.render("frontview", 320, 240)
+        assert compositor._context.shadowSize > 0
+        figures = picture_difference(ours, reference("frontview", 320, 240))
+        assert figures["mad"] <= SINGLE_PASS_MAD_LIMIT and figures["blob"] <= BLOB_LIMIT, figures
+    finally:
+        lights[:] = saved
+    sim.render("frontview", 320, 240)
 
 
 def test_rendering_never_touches_the_physics(sim):

@@ -20,6 +20,7 @@ import numpy as np
 
 from crowdteleop.sim.fastrender.layers import (
     MOVING,
+    MOVING_SEE_THROUGH,
     STATIC,
     STATIC_SEE_THROUGH,
     Layers,
@@ -106,7 +107,7 @@ class Compositor:
         layers.apply(model)
         self._background_option = layers.option(STATIC_SEE_THROUGH, STATIC)
         self._moving_option = layers.option(STATIC_SEE_THROUGH, MOVING)
-        self._full_option = layers.option(STATIC_SEE_THROUGH, STATIC, MOVING)
+        self._full_option = layers.option(STATIC_SEE_THROUGH, STATIC, MOVING, MOVING_SEE_THROUGH)
         self._backgrounds.clear()
         self._see_through_memo = None
 
