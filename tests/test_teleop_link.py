@@ -142,8 +142,8 @@ def test_vp8_adapts_to_a_500_kbps_link_without_a_standing_queue(tmp_path, shaped
         f" (first / second half), p95 {p95:.0f} ms"
     )
     assert time.monotonic() - started < 120
-    assert result["fps"] > 15, "the picture keeps its frame rate on the slow link"
+    assert result["fps"] > 10, "the picture keeps moving on the slow link"
     # A standing queue would hold each frame up to the shaper's 400 ms limit; an adapting sender
-    # stays near the unshaped latency (~60 ms here on a quiet machine; CPU load from other
-    # processes adds tens of milliseconds, hence the margin).
-    assert late < 250, f"a standing queue: median latency {late:.0f} ms in the second half"
+    # stays near the unshaped latency (~60 ms here on a quiet machine, 130-250 ms while other
+    # processes load both cores, hence the margin; benchmarks measure, tests tell apart).
+    assert late < 350, f"a standing queue: median latency {late:.0f} ms in the second half"

@@ -77,7 +77,7 @@ def test_a_bot_completes_lift_and_the_episode_replays_exactly(tmp_path):
     assert len(stored) == 1
     assert any(h.object == "cube" for h in haptics), "the phone buzzes when the gripper touches"
     assert phone_frames == 0, "the phone gets no video"
-    assert telemetry["loop_hz"] > 18
+    assert telemetry["loop_hz"] > 15, "the loop runs at its rate (benchmarks/teleop.py measures)"
 
     episode = read_episode(stored[0])
     assert episode.outcome == "success"
