@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import platform
 import socket
 import statistics
@@ -23,36 +24,124 @@ from rich.console import Console
 from rich.table import Table
 
 from crowdteleop.data.dataset import build_dataset
+from crowdteleop.data.recording import StepRecord
 from crowdteleop.data.s3 import S3Config, S3Storage
-from crowdteleop.data.scripted import record_scripted_episode, scripted_rig
+from crowdteleop.data.scripted import scripted_rig
 
 app = typer.Typer(add_completion=False)
 
 
 def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
-    """Step time vs recording time (append, including its periodic write + fsync)."""
-    step_s = record_s = step_cpu = record_cpu = 0.0
+    """Step time vs recording time, each control step recorded as ``TeleopSession._step`` does.
+
+    Scripted lift episodes drive the real control path; each step's device command reaches a
+    ``CommandBoard`` as the phone's pose message would, and the recording lines of
+    ``TeleopSession._step`` run as written there (the state before the step, a ``StepRecord``,
+    ``EpisodeTracker.record`` -> ``EpisodeRecorder.append``; the periodic write + fsync run in
+    the recorder's flusher thread). Recording costs: ``get_state`` (taken for the recording
+    only) and the append, on the control thread; ``raw_command`` on the event loop's thread.
+    """
+    from crowdteleop.control.scripted import ScriptedOperator, run_episode
+    from crowdteleop.data.versions import runtime_versions
+    from crowdteleop.teleop.commands import CommandBoard
+    from crowdteleop.teleop.episode import EpisodeTracker
+    from crowdteleop.teleop.protocol import PoseCommand
+
+    names = ("step", "record", "step_cpu", "record_cpu", "state_cpu", "raw_cpu")
+    timing = dict.fromkeys(names, 0.0)
     steps = 0
     paths = []
     with scripted_rig("lift") as rig:
+        sim, teleop, control, metadata = rig
+        step_once = teleop.step
         for seed in range(episodes):
-            extra = {"interface": "phone", "worker_id": f"w{seed % 3}"}
-            episode = record_scripted_episode(rig, directory, f"bench-{seed}", seed, extra)
-            step_s += episode.step_seconds
-            record_s += episode.record_seconds
-            step_cpu += episode.step_cpu_seconds
-            record_cpu += episode.record_cpu_seconds
-            steps += episode.steps
-            paths.append(episode.path)
+            tracker = EpisodeTracker(
+                control_dt=sim.control_dt,
+                time_limit_s=math.inf,  # run_episode decides when the episode ends
+                success_hold_steps=2**31,
+                recordings=directory,
+                metadata={**metadata, "session_id": f"bench-{seed}", "reset_seed": seed},
+            )
+            board = CommandBoard()
+            operator = ScriptedOperator(sim, control.mapping, seed=seed)
+
+            def recorded_step(command: Any, tracker: Any = tracker, board: Any = board) -> Any:
+                board.apply_pose(
+                    "bench",
+                    PoseCommand(
+                        seq=board.last_seq + 1,
+                        t=1000 * time.time(),
+                        device="phone",
+                        position=tuple(command.position.tolist()),
+                        quaternion=tuple(command.quaternion.tolist()),
+                        engaged=command.engaged,
+                        gripper=command.gripper_closed,
+                    ),
+                )
+                raw_cpu = time.thread_time()
+                raw = board.raw_command()  # TeleopSession.tick, on the event loop
+                raw_cpu = time.thread_time() - raw_cpu
+                tracker.maybe_start(command.engaged)
+                # from here on as in TeleopSession._step (the simulation thread)
+                wall, cpu = time.perf_counter(), time.thread_time()
+                recording = tracker.recording
+                state = sim.get_state() if recording else None
+                started_wall, started = time.time(), time.perf_counter()
+                step_cpu = time.thread_time()
+                step = step_once(command)
+                duration = time.perf_counter() - started
+                record_wall, record_cpu = time.perf_counter(), time.thread_time()
+                if recording:
+                    result = step.result
+                    tracker.record(
+                        StepRecord(
+                            index=tracker.steps,
+                            state=state,
+                            action=step.action,
+                            command=raw,
+                            server_time=started_wall,
+                            step_duration_s=duration,
+                            reward=result.reward,
+                            success=result.success,
+                            contacts=list(map(vars, result.contacts)),
+                        )
+                    )
+                end_wall, end_cpu = time.perf_counter(), time.thread_time()
+                if recording:  # steps before the clutch is first pressed are not recorded
+                    timing["step"] += duration
+                    timing["step_cpu"] += record_cpu - step_cpu
+                    timing["record"] += (end_wall - record_wall) + (started - wall)
+                    timing["record_cpu"] += (end_cpu - record_cpu) + (step_cpu - cpu)
+                    timing["state_cpu"] += step_cpu - cpu
+                    timing["raw_cpu"] += raw_cpu
+                return step
+
+            teleop.step = recorded_step  # type: ignore[method-assign]
+            try:
+                result = run_episode(teleop, operator, seed)
+            finally:
+                teleop.step = step_once  # type: ignore[method-assign]
+            finished = tracker.end("success" if result.success else "timeout")
+            assert finished is not None and finished.recorder is not None
+            extra = {
+                "versions": runtime_versions(),
+                "interface": "phone",
+                "worker_id": f"w{seed % 3}",
+            }
+            paths.append(finished.recorder.finalize(finished.outcome, extra))
+            steps += finished.steps
     return {
         "episodes": episodes,
         "steps": steps,
-        "step_ms": 1000 * step_s / steps,
-        "record_us": 1e6 * record_s / steps,
-        "overhead_pct": 100 * record_s / step_s,
-        "step_cpu_ms": 1000 * step_cpu / steps,
-        "record_cpu_us": 1e6 * record_cpu / steps,
-        "overhead_cpu_pct": 100 * record_cpu / step_cpu,
+        "step_ms": 1000 * timing["step"] / steps,
+        "record_us": 1e6 * timing["record"] / steps,
+        "overhead_pct": 100 * timing["record"] / timing["step"],
+        "step_cpu_ms": 1000 * timing["step_cpu"] / steps,
+        "record_cpu_us": 1e6 * timing["record_cpu"] / steps,
+        "overhead_cpu_pct": 100 * timing["record_cpu"] / timing["step_cpu"],
+        "get_state_cpu_us": 1e6 * timing["state_cpu"] / steps,
+        "append_cpu_us": 1e6 * (timing["record_cpu"] - timing["state_cpu"]) / steps,
+        "raw_command_cpu_us": 1e6 * timing["raw_cpu"] / steps,
     }, paths
 
 
@@ -109,17 +198,18 @@ def main(
     episodes: Annotated[int, typer.Option(help="scripted lift episodes to record")] = 8,
     uploads: Annotated[int, typer.Option(help="puts to time")] = 20,
     json_out: Annotated[Path | None, typer.Option("--json", help="write figures here")] = None,
+    recording_only: Annotated[bool, typer.Option(help="skip the upload and build")] = False,
 ) -> None:
     console = Console()
     logging.getLogger("werkzeug").setLevel(logging.ERROR)  # moto's per-request log lines
     with tempfile.TemporaryDirectory() as tmp:
         directory = Path(tmp) / "episodes"
         recording, paths = record(directory, episodes)
-        uploading = upload(paths, uploads)
-        building = build(directory, Path(tmp), episodes)
+        uploading = {} if recording_only else upload(paths, uploads)
+        building = {} if recording_only else build(directory, Path(tmp), episodes)
     table = Table("measure", "value")
     table.add_row("control step (lift, ik-velocity)", f"{recording['step_ms']:.2f} ms")
-    table.add_row("recording per step (append + flushes)", f"{recording['record_us']:.0f} us")
+    table.add_row("recording per step (get_state + append)", f"{recording['record_us']:.0f} us")
     table.add_row("recording overhead", f"{recording['overhead_pct']:.2f} % of step time")
     table.add_row(
         "same, CPU time of the control thread",
@@ -127,10 +217,18 @@ def main(
         f"{recording['overhead_cpu_pct']:.2f} %",
     )
     table.add_row(
-        f"upload one demo ({uploading['file_kib']:.0f} KiB) to local S3",
-        f"median {uploading['median_ms']:.1f} ms, p95 {uploading['p95_ms']:.1f} ms",
+        "  of which get_state / StepRecord + append",
+        f"{recording['get_state_cpu_us']:.0f} us / {recording['append_cpu_us']:.0f} us",
     )
-    table.add_row("idempotent re-put (already stored)", f"{uploading['retry_ms']:.1f} ms")
+    table.add_row(
+        "raw_command (event loop thread, CPU)", f"{recording['raw_command_cpu_us']:.1f} us"
+    )
+    if uploading:
+        table.add_row(
+            f"upload one demo ({uploading['file_kib']:.0f} KiB) to local S3",
+            f"median {uploading['median_ms']:.1f} ms, p95 {uploading['p95_ms']:.1f} ms",
+        )
+        table.add_row("idempotent re-put (already stored)", f"{uploading['retry_ms']:.1f} ms")
     for label, figures in building.items():
         table.add_row(
             f"build {episodes} demos ({label.replace('_', ' ')})",

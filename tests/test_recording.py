@@ -8,10 +8,12 @@ import errno
 import json
 import os
 import signal
+import struct
 import subprocess
 import sys
 import tempfile
 import time
+import zlib
 from pathlib import Path
 
 import h5py
@@ -333,6 +335,36 @@ JSON = st.recursive(
     max_leaves=8,
 )
 FLOATS = st.floats(allow_nan=False, allow_infinity=False, allow_subnormal=True)
+ALMOST_FLOAT = FLOATS | st.integers(-(2**70), 2**70) | st.booleans() | st.none()
+DEVICES = st.sampled_from([None, "phone", "keyboard", "vr", "scripted", "tablet", ""])
+
+
+@st.composite
+def device_commands(draw) -> dict:
+    """Commands shaped as the teleop server's (packed in the log) or nearly so (JSON)."""
+    values = {
+        "seq": draw(st.integers(-(2**64), 2**64) | st.booleans()),
+        "t": draw(FLOATS | st.integers(0, 10)),
+        "device": draw(DEVICES),
+        "position": draw(st.lists(FLOATS, min_size=3, max_size=3) | st.lists(ALMOST_FLOAT)),
+        "quaternion": draw(st.lists(FLOATS, min_size=4, max_size=4) | st.lists(ALMOST_FLOAT)),
+        "engaged": draw(st.booleans() | st.integers(0, 1)),
+        "gripper": draw(st.booleans() | FLOATS | st.none()),
+    }
+    keys = draw(st.permutations(list(values)))
+    keys = keys[: draw(st.sampled_from([7, 7, 7, 6]))]
+    command = {key: values[key] for key in keys}
+    if draw(st.integers(0, 5)) == 0:
+        command["extra"] = draw(JSON)
+    return command
+
+
+CONTACTS = st.lists(
+    st.fixed_dictionaries(
+        {"robot_part": st.text(), "object": st.text(), "intensity": FLOATS | st.integers()}
+    ),
+    max_size=3,
+)
 
 
 @st.composite
@@ -344,12 +376,14 @@ def episodes(draw) -> list[StepRecord]:
             index=index,
             state=draw(hnp.arrays(np.float64, sizes[0], elements=FLOATS)),
             action=draw(hnp.arrays(np.float64, sizes[1], elements=FLOATS)),
-            command=draw(st.dictionaries(st.text(), JSON, max_size=4)),
+            command=draw(st.dictionaries(st.text(), JSON, max_size=4) | device_commands()),
             server_time=draw(FLOATS),
             step_duration_s=draw(FLOATS),
             reward=draw(FLOATS),
             success=draw(st.booleans()),
-            contacts=draw(st.lists(st.dictionaries(st.text(), JSON, max_size=3), max_size=3)),
+            contacts=draw(
+                st.lists(st.dictionaries(st.text(), JSON, max_size=3), max_size=3) | CONTACTS
+            ),
         )
         for index in range(steps)
     ]
@@ -375,6 +409,135 @@ def test_round_trip_property(steps, outcome, flush_interval_s):
         assert episode.success.tolist() == [s.success for s in steps]
         assert episode.commands == [s.command for s in steps]
         assert episode.contacts == [s.contacts for s in steps]
+        for recorded, step in zip(partial.commands, steps, strict=False):
+            assert json.dumps(recorded) == json.dumps(step.command)  # types and key order
+        for recorded, step in zip(episode.contacts, steps, strict=True):
+            assert json.dumps(recorded) == json.dumps(step.contacts)
+
+
+def session_step(index: int, **changes) -> StepRecord:
+    """A step as ``TeleopSession._step`` records it (``CommandBoard.raw_command``)."""
+    command = {
+        "seq": 40 + index,
+        "t": 1.7e12 + index * 50.5,
+        "device": "phone",
+        "position": [0.1 * index, -0.0, 5e-324],
+        "quaternion": [0.0, 0.0, 0.2, 0.98],
+        "engaged": True,
+        "gripper": index % 2 == 0,
+    }
+    fields = {
+        "index": index,
+        "state": child.make_step(index).state,
+        "action": np.arange(8.0) * index,
+        "command": command,
+        "server_time": 2000.0 + index,
+        "step_duration_s": 0.004,
+        "reward": np.float64(index % 3),
+        "success": np.bool_(index == 4),
+        "contacts": [{"robot_part": "gripper0_finger", "object": "cube", "intensity": 0.25}]
+        * (index % 3),
+    }
+    return StepRecord(**{**fields, **changes})
+
+
+def test_session_steps_are_packed_without_json_and_come_back_exactly(tmp_path):
+    steps = [session_step(i) for i in range(6)]
+    steps[1].command["device"] = None  # nobody in control
+    steps[2].command = dict(reversed(list(steps[2].command.items())))  # any key order
+    steps[3].command["gripper"] = 0.5  # a float gripper (scripted operators)
+    steps[5].contacts = [{"robot_part": "é", "object": "", "intensity": -0.0}]
+    recorder = EpisodeRecorder(tmp_path, "packed", {"k": 1}, flush_interval_s=0.0)
+    for step in steps:
+        recorder.append(step)
+    log = recorder.wal_path.read_bytes()
+    assert log.startswith(b"CTWAL02\n")
+    assert b'"seq"' not in log and b'"contacts"' not in log  # no JSON
+    episode = read_episode(recorder.finalize("success"))
+    assert bits(episode.states) == bits(np.array([s.state for s in steps]))
+    assert bits(episode.actions) == bits(np.array([s.action for s in steps]))
+    assert [json.dumps(c) for c in episode.commands] == [json.dumps(s.command) for s in steps]
+    assert [json.dumps(c) for c in episode.contacts] == [json.dumps(s.contacts) for s in steps]
+    assert episode.success.tolist() == [False] * 4 + [True, False]
+    with h5py.File(tmp_path / "packed.hdf5", "r") as file:
+        commands = file["data/demo_0/commands"]
+        assert commands["seq"][()].tolist() == list(range(40, 46))
+        assert commands["gripper"][()].tolist() == [1, 0, 1, 0.5, 1, 0]
+        assert commands["device"].asstr()[()].tolist() == ["phone", "", *["phone"] * 4]
+        assert bits(commands["position"][()]) == bits(
+            np.array([s.command["position"] for s in steps])
+        )
+
+
+def test_commands_that_do_not_pack_are_kept_as_json_or_refused(tmp_path):
+    recorder = EpisodeRecorder(tmp_path, "odd", {"k": 1}, flush_interval_s=0.0)
+    odd = [
+        {"t": 5},  # an int where a float packs
+        {"position": (0.0, 1.0, 2.0)},  # a tuple
+        {"position": [np.float64(0.5), 1.0, 2.0]},
+        {"seq": 2**63},
+        {"seq": True},
+        {"device": "tablet"},
+        {"gripper": 1},
+        {"extra": [1, "a"]},
+    ]
+    expected = []
+    for index, change in enumerate(odd):
+        step = session_step(index)
+        command = {**step.command, **change}
+        expected.append(json.loads(json.dumps(command)))
+        recorder.append(dataclasses.replace(step, command=command))
+    partial = read_partial(recorder.wal_path)
+    assert [json.dumps(c) for c in partial.commands] == [json.dumps(c) for c in expected]
+    bad = session_step(len(odd))
+    for command in (
+        {**bad.command, "position": [0.0, float("nan"), 0.0]},
+        {**bad.command, "t": float("inf")},
+        {**bad.command, "gripper": float("-inf")},
+    ):
+        with pytest.raises(InvalidRecordError, match="JSON"):
+            recorder.append(dataclasses.replace(bad, command=command))
+    for contacts in (
+        [{"robot_part": "a", "object": "b", "intensity": float("nan")}],
+        [{"robot_part": "a", "object": "b", "intensity": 1.0, "x": object()}],
+    ):
+        with pytest.raises(InvalidRecordError, match="JSON"):
+            recorder.append(dataclasses.replace(bad, contacts=contacts))
+    odd_contacts = [
+        [{"robot_part": "a\x00b", "object": "c", "intensity": 1.0}],  # NUL: as JSON
+        [{"object": "c", "robot_part": "a", "intensity": 1.0}],  # other key order
+        [{"robot_part": "\ud800", "object": "c", "intensity": 1}],  # a lone surrogate
+    ]
+    for contacts in odd_contacts:
+        recorder.append(dataclasses.replace(session_step(recorder.steps), contacts=contacts))
+    episode = read_episode(recorder.finalize("reset"))
+    assert [json.dumps(c) for c in episode.contacts[-3:]] == [json.dumps(c) for c in odd_contacts]
+
+
+def test_version_1_logs_are_still_read_and_recovered(tmp_path):
+    """Logs written before the packed layout (magic CTWAL01, JSON commands) stay recoverable."""
+    steps = [child.make_step(i) for i in range(4)]
+    header = {"episode_id": "old", "created_at": 1.0, "metadata": METADATA}
+    records = [b"H" + json.dumps(header).encode()]
+    for step in steps:
+        head = struct.pack(
+            "<qdddBII",
+            step.index,
+            step.server_time,
+            step.step_duration_s,
+            step.reward,
+            step.success,
+            step.state.size,
+            step.action.size,
+        )
+        extras = json.dumps({"command": step.command, "contacts": step.contacts}).encode()
+        records.append(b"S" + head + step.state.tobytes() + step.action.tobytes() + extras)
+    log = b"CTWAL01\n" + b"".join(struct.pack("<II", len(r), zlib.crc32(r)) + r for r in records)
+    (tmp_path / "old.wal").write_bytes(log + b"\x07\x00")  # and a torn tail
+    partial = read_partial(tmp_path / "old.wal")
+    assert (partial.steps, partial.ignored_tail_bytes) == (4, 2)
+    assert recover_orphans(tmp_path) == [tmp_path / "old.hdf5"]
+    assert_holds_child_steps(read_episode(tmp_path / "old.hdf5"), 4)
 
 
 def test_local_storage_put_get_list(tmp_path):

@@ -37,7 +37,7 @@ class CorruptEpisodeError(CrowdteleopError, ValueError):
     """A file that is not, or no longer, a readable crowdteleop episode or write-ahead log."""
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)  # not frozen: built every control step, and a frozen __init__ is slower
 class StepRecord:
     """One control step as the teleop server saw it; ``state`` is the state before ``action``."""
 
@@ -220,7 +220,8 @@ def _is_utf8(text: str) -> bool:
 
 
 def _int(value: Any) -> int:
-    return value if isinstance(value, int) and not isinstance(value, bool) else -1
+    integer = isinstance(value, int) and not isinstance(value, bool)
+    return value if integer and -(2**63) <= value < 2**63 else -1  # raw keeps a larger one
 
 
 def _floats(value: Any, n: int) -> np.ndarray:

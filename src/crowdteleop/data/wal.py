@@ -1,17 +1,19 @@
 """Crash-safe episode recording: a write-ahead log while the episode runs, one HDF5 file after.
 
-Write-ahead log (``<episode_id>.wal``): the magic ``CTWAL01\\n``, then records framed as
+Write-ahead log (``<episode_id>.wal``): the magic ``CTWAL02\\n``, then records framed as
 ``<u32 payload length><u32 CRC-32 of payload><payload>`` (little-endian). The first payload is
 the header (``H`` + JSON: episode id, creation time, metadata with the MJCF); every other one a
-step (``S`` + index, times, reward, success, state and action sizes, the raw float64 bytes of
-state and action, then JSON of the device command and contacts). Binary rather than JSON lines
-because (1) states and actions are stored as their IEEE bits, so replay is exact by
-construction (-0.0, subnormals and all); (2) the checksum tells a torn or garbage tail (a
-kill mid-write, or the zero-filled block a power loss can leave) from a record, where a
-damaged JSON number could still parse; (3) a step of 70 floats encodes in ~18 us, as JSON
-~90 us (``benchmarks/recording.py`` times the whole append: ~25 us). Appends go to a memory
-buffer, written and fsync'd by a flusher thread once ``flush_interval_s`` has passed (so the
-fsync never stalls the control loop): a crash loses at most that.
+step (``C`` + index, times, reward, success, state and action sizes, flags, the device
+command's numbers, contact count; the raw float64 bytes of state and action; contact
+intensities and names; JSON only of a command or contacts that do not fit that layout).
+Version 1 logs (``CTWAL01\\n``, steps as ``S`` records with the command and contacts in JSON)
+are still read. Binary rather than JSON lines because (1) states and actions are stored as
+their IEEE bits, so replay is exact by construction (-0.0, subnormals and all); (2) the
+checksum tells a torn or garbage tail (a kill mid-write, or the zero-filled block a power loss
+can leave) from a record, where a damaged JSON number could still parse; (3) it is cheap on the
+control loop, which only validates and copies a step: packing, framing and checksums happen
+when the buffer is flushed, by a flusher thread once ``flush_interval_s`` has passed (so
+neither they nor the fsync stall the control loop): a crash loses at most that.
 
 A live recorder holds ``flock`` on its log, so ``recover_orphans`` never touches an episode
 that is still being recorded, and the lock dies with a killed process. The finished episode
@@ -26,6 +28,7 @@ from __future__ import annotations
 import fcntl
 import json
 import logging
+import math
 import os
 import re
 import struct
@@ -57,11 +60,30 @@ from crowdteleop.errors import InvalidActionError, InvalidStateError
 
 log = logging.getLogger(__name__)
 
-WAL_MAGIC = b"CTWAL01\n"
+WAL_MAGIC = b"CTWAL02\n"
+WAL_MAGIC_V1 = b"CTWAL01\n"  # read, never written: steps only as "S" records
 WAL_SUFFIX = ".wal"
 
 _FRAME = struct.Struct("<II")  # payload length, CRC-32 of payload
 _STEP = struct.Struct("<qdddBII")  # index, server_time, step_duration_s, reward, success, S, A
+# A compact step ("C", version 2): the fields of _STEP, flags, the device command's numbers,
+# the contacts' count and string bytes; then state, action, contact intensities, contact
+# strings, and JSON of whatever is not packed (see _encode).
+_COMPACT = struct.Struct("<cqdddBIIBqd3d4d?dB7sHI")
+_COMMAND_PACKED, _GRIPPER_BOOL, _CONTACTS_PACKED = 1, 2, 4  # flags
+# A command is packed when it has exactly these keys (in any order, kept) with exact types:
+# seq int, t float, device one of _DEVICES, position 3 and quaternion 4 floats in lists,
+# engaged bool, gripper float or bool; all finite. Anything else is stored as JSON.
+_COMMAND_KEYS = ("seq", "t", "device", "position", "quaternion", "engaged", "gripper")
+_DEVICES = (None, "phone", "keyboard", "vr", "spacemouse", "gamepad", "bot", "scripted")
+_DEVICE_CODES = {device: code for code, device in enumerate(_DEVICES)}
+_KEY_ORDERS: dict[tuple[str, ...], bytes] = {}  # a command's key tuple -> its order code
+_CONTACT_KEYS = ("robot_part", "object", "intensity")
+_F8 = np.dtype("<f8")
+# A validated step awaiting its flush: _COMPACT's fields, state + action (the recorder's own
+# copy), and the bytes after them (contact intensities and names, JSON of the rest).
+_Entry = tuple[tuple[Any, ...], np.ndarray, bytes]
+_INT64 = (-(2**63), 2**63)
 _MAX_PAYLOAD = 64 * 1024 * 1024  # larger length fields are garbage, not records
 _EPISODE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")
 
@@ -69,8 +91,8 @@ _EPISODE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")
 class EpisodeRecorder:
     """Records one episode: ``append`` every control step, then ``finalize`` with the outcome.
 
-    Safe to call from several threads (one lock; ``append`` holds it for ~20 us, a flush for
-    the time of one fsync).
+    Safe to call from several threads (one lock, held by ``append`` for the time of one step's
+    validation and copy; the fsync happens outside it).
     """
 
     def __init__(
@@ -99,17 +121,20 @@ class EpisodeRecorder:
         if self.episode_path.exists():
             raise RecordingError(f"episode {episode_id} is already recorded: {self.episode_path}")
         self._fd = _create_wal(self.wal_path, WAL_MAGIC + _frame(header_payload))
-        self._lock = threading.Lock()  # state and buffer; held ~20 us by append
+        self._lock = threading.Lock()  # state and buffer; held briefly by append
         self._io = threading.Lock()  # writes to the log; always taken before _lock
         self._due = threading.Event()
         self._flusher: threading.Thread | None = None
         self._deferred: RecordingError | None = None  # a background flush's failure
-        self._buffer = bytearray()
+        self._buffer = bytearray()  # framed records not yet durable
+        self._entries: list[_Entry] = []  # validated steps, framed by the next flush
         self._durable_size = os.fstat(self._fd).st_size
         self._last_flush = time.monotonic()
         self._steps = 0
         self._flushed_steps = 0
         self._sizes: tuple[int, int] | None = None  # state and action sizes, from step 0
+        self._shapes: tuple[tuple[int], tuple[int]] | None = None  # the same as array shapes
+        self._zeros = np.zeros(0)  # S + A zeros: x.dot(zeros) is NaN unless x is all finite
         self._closed = False
 
     @property
@@ -138,11 +163,10 @@ class EpisodeRecorder:
         log was cut back to whole records and the next flush retries.
         """
         with self._lock:
-            self._check_open()
-            payload, sizes = self._encode(record)
-            self._buffer += _frame(payload)
+            if self._closed:
+                self._check_open()
+            self._entries.append(self._encode(record))
             self._steps += 1
-            self._sizes = sizes
             deferred, self._deferred = self._deferred, None
             due = time.monotonic() - self._last_flush >= self.flush_interval_s
             if due and self.flush_interval_s == 0:
@@ -216,6 +240,8 @@ class EpisodeRecorder:
                         return
                     pending, steps = bytes(self._buffer), self._steps
                     self._buffer.clear()
+                    entries, self._entries = self._entries, []
+                pending += _frames(entries)  # outside _lock: appends go on meanwhile
                 if not pending:
                     continue
                 try:
@@ -230,6 +256,9 @@ class EpisodeRecorder:
     def _flush_locked(self) -> None:
         """Write and fsync the buffer with ``_io`` and ``_lock`` held."""
         self._last_flush = time.monotonic()
+        if self._entries:
+            self._buffer += _frames(self._entries)
+            self._entries = []
         if not self._buffer:
             return
         self._write_durably(bytes(self._buffer))
@@ -264,13 +293,82 @@ class EpisodeRecorder:
         self._closed = True
         self._due.set()  # the flusher sees the recorder closed and ends
 
-    def _encode(self, record: StepRecord) -> tuple[bytes, tuple[int, int]]:
-        if record.index != self._steps:
+    def _encode(self, record: StepRecord) -> _Entry:
+        """The step validated and copied, ready for ``_frames``; raises if the record is bad.
+
+        The hot path of the control loop: one concatenation (a copy) and one dot product check
+        state and action, the device command's numbers are checked and taken as they are, JSON
+        only for what does not fit the packed layout. Packing, framing and the checksum wait
+        for the flush (the flusher thread's, normally).
+        """
+        index = record.index
+        if index != self._steps:
             raise InvalidRecordError(
-                f"step index {record.index} out of order: step {self._steps} comes next"
+                f"step index {index} out of order: step {self._steps} comes next"
             )
-        state = _finite_vector(record.state, "state", InvalidStateError)
-        action = _finite_vector(record.action, "action", InvalidActionError)
+        state, action = record.state, record.action
+        try:
+            if (state.shape, action.shape) != self._shapes:
+                raise ValueError("first step, or other sizes")
+            vector = np.concatenate((state, action))
+            if vector.dtype is not _F8 or not math.isfinite(vector.dot(self._zeros)):
+                raise ValueError("not float64, or not finite")  # (checked again, in detail)
+            state_size = state.size
+        except (AttributeError, TypeError, ValueError):
+            vector, state_size = self._checked_vectors(state, action)
+        try:
+            times = float(record.server_time), float(record.step_duration_s)
+            reward = float(record.reward)
+        except (TypeError, ValueError):
+            times, reward = (0.0, 0.0), math.nan
+        if not math.isfinite(times[0] + times[1] + reward):
+            times = (
+                _finite_scalar(record.server_time, "server_time"),
+                _finite_scalar(record.step_duration_s, "step_duration_s"),
+            )
+            reward = _finite_scalar(record.reward, "reward")  # only overflowed the sum
+        command, contacts = record.command, record.contacts
+        if not isinstance(command, dict) or not isinstance(contacts, list):
+            raise InvalidRecordError("command must be a dict and contacts a list")
+        flags, numbers = _pack_command(command)
+        n_contacts, tail, names_size = _pack_contacts(contacts)
+        if n_contacts >= 0:
+            flags |= _CONTACTS_PACKED
+        if not flags & _COMMAND_PACKED or n_contacts < 0:  # JSON for what did not pack
+            rest: dict[str, Any] = {} if flags & _COMMAND_PACKED else {"command": command}
+            if n_contacts < 0:
+                n_contacts, rest["contacts"] = 0, contacts
+            tail += to_json(rest, "step").encode()
+        action_size = vector.size - state_size
+        if self._sizes is None:  # the first step: nothing can fail from here on
+            self._set_sizes(state_size, action_size)
+        return (
+            (
+                b"C",
+                index,
+                *times,
+                reward,
+                bool(record.success),
+                state_size,
+                action_size,
+                flags,
+                *numbers,
+                n_contacts,
+                names_size,
+            ),
+            vector,
+            tail,
+        )
+
+    def _set_sizes(self, state_size: int, action_size: int) -> None:
+        self._sizes = state_size, action_size
+        self._shapes = (state_size,), (action_size,)
+        self._zeros = np.zeros(state_size + action_size)
+
+    def _checked_vectors(self, state: Any, action: Any) -> tuple[np.ndarray, int]:
+        """State and action validated one by one (the first step, or anything unusual)."""
+        state = _finite_vector(state, "state", InvalidStateError)
+        action = _finite_vector(action, "action", InvalidActionError)
         if self._sizes is not None and state.size != self._sizes[0]:
             raise InvalidStateError(
                 f"state has {state.size} entries, earlier steps of this episode {self._sizes[0]}"
@@ -279,20 +377,7 @@ class EpisodeRecorder:
             raise InvalidActionError(
                 f"action has {action.size} entries, earlier steps of this episode {self._sizes[1]}"
             )
-        if not isinstance(record.command, dict) or not isinstance(record.contacts, list):
-            raise InvalidRecordError("command must be a dict and contacts a list")
-        extras = to_json({"command": record.command, "contacts": record.contacts}, "step")
-        head = _STEP.pack(
-            record.index,
-            _finite_scalar(record.server_time, "server_time"),
-            _finite_scalar(record.step_duration_s, "step_duration_s"),
-            _finite_scalar(record.reward, "reward"),
-            bool(record.success),
-            state.size,
-            action.size,
-        )
-        payload = b"".join((b"S", head, state.tobytes(), action.tobytes(), extras.encode()))
-        return payload, (state.size, action.size)
+        return np.concatenate((state, action)), state.size
 
 
 def read_partial(path: Path) -> PartialEpisode:
@@ -405,8 +490,17 @@ def _frame(payload: bytes) -> bytes:
     return _FRAME.pack(len(payload), zlib.crc32(payload)) + payload
 
 
+def _frames(entries: list[_Entry]) -> bytes:
+    """Validated steps as framed "C" records."""
+    parts = []
+    for fields, vector, tail in entries:
+        payload = b"".join((_COMPACT.pack(*fields), vector.tobytes(), tail))
+        parts += (_FRAME.pack(len(payload), zlib.crc32(payload)), payload)
+    return b"".join(parts)
+
+
 def _parse_wal(data: bytes, path: Path) -> PartialEpisode:
-    if not data.startswith(WAL_MAGIC):
+    if not data.startswith((WAL_MAGIC, WAL_MAGIC_V1)):
         raise CorruptEpisodeError(f"{path} is not a crowdteleop write-ahead log")
     records = _records(data)
     try:
@@ -420,7 +514,7 @@ def _parse_wal(data: bytes, path: Path) -> PartialEpisode:
     for record_end, payload in records:
         try:
             steps.append(_decode_step(payload, len(steps)))
-        except (ValueError, KeyError, TypeError, struct.error):
+        except (ValueError, KeyError, TypeError, IndexError, struct.error):
             break  # checksum fine but not our step: a bug or a foreign tail; stop trusting
         end = record_end
     metadata, model_xml, env_args = split_metadata(header["metadata"])
@@ -467,7 +561,85 @@ def _decode_header(payload: bytes) -> dict[str, Any]:
     return header
 
 
+def _pack_command(command: dict[str, Any]) -> tuple[int, tuple[Any, ...]]:
+    """(flags, the _COMPACT fields) of a command that packs exactly, else (0, zeros)."""
+    order = _KEY_ORDERS.get(tuple(command)) or _key_order(command)
+    if order is None:
+        return 0, _NO_COMMAND
+    seq, t, gripper, engaged = command["seq"], command["t"], command["gripper"], command["engaged"]
+    position, quaternion = command["position"], command["quaternion"]
+    try:
+        p0, p1, p2 = position
+        q0, q1, q2, q3 = quaternion
+        device = _DEVICE_CODES[command["device"]]
+    except (TypeError, ValueError, KeyError):
+        return 0, _NO_COMMAND
+    if not (
+        type(seq) is int
+        and _INT64[0] <= seq < _INT64[1]
+        and type(engaged) is bool
+        and type(position) is list is type(quaternion)
+        and type(t) is float is type(p0) is type(p1) is type(p2)
+        and float is type(q0) is type(q1) is type(q2) is type(q3)
+        and math.isfinite(t + p0 + p1 + p2 + q0 + q1 + q2 + q3)  # NaN and inf: JSON refuses
+    ):
+        return 0, _NO_COMMAND
+    if type(gripper) is bool:
+        flags = _COMMAND_PACKED | _GRIPPER_BOOL
+    elif type(gripper) is float and math.isfinite(gripper):
+        flags = _COMMAND_PACKED
+    else:
+        return 0, _NO_COMMAND
+    return flags, (seq, t, p0, p1, p2, q0, q1, q2, q3, engaged, float(gripper), device, order)
+
+
+_NO_COMMAND = (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, 0.0, 0, bytes(7))
+
+
+def _key_order(command: dict[str, Any]) -> bytes | None:
+    """The order of a command's keys as indices into _COMMAND_KEYS, if they are those keys."""
+    keys = tuple(command)
+    if len(keys) != len(_COMMAND_KEYS) or set(keys) != set(_COMMAND_KEYS):
+        return None
+    order = bytes(_COMMAND_KEYS.index(key) for key in keys)
+    _KEY_ORDERS[keys] = order  # at most 7! entries
+    return order
+
+
+def _pack_contacts(contacts: list[Any]) -> tuple[int, bytes, int]:
+    """(count, intensities as float64 + NUL-joined UTF-8 names, size of the names) if they
+    pack exactly, else (-1, b"", 0)."""
+    if not contacts:
+        return 0, b"", 0
+    names: list[str] = []
+    intensities = []
+    for contact in contacts:
+        if type(contact) is not dict or tuple(contact) != _CONTACT_KEYS:
+            return _NOT_PACKED
+        part, other, intensity = contact.values()
+        if not (type(part) is str is type(other) and type(intensity) is float):
+            return _NOT_PACKED
+        names += (part, other)
+        intensities.append(intensity)
+    joined = "\x00".join(names)
+    if len(intensities) > 0xFFFF or joined.count("\x00") != len(names) - 1:
+        return _NOT_PACKED
+    if not math.isfinite(sum(intensities)):
+        return _NOT_PACKED
+    try:
+        encoded = joined.encode()
+    except UnicodeEncodeError:  # lone surrogates: JSON escapes them
+        return _NOT_PACKED
+    values = struct.pack(f"<{len(intensities)}d", *intensities)
+    return len(intensities), values + encoded, len(encoded)
+
+
+_NOT_PACKED = -1, b"", 0
+
+
 def _decode_step(payload: bytes, index: int) -> StepRecord:
+    if payload[:1] == b"C":
+        return _decode_compact(payload, index)
     if payload[:1] != b"S":
         raise ValueError("not a step record")
     fields = _STEP.unpack_from(payload, 1)
@@ -487,6 +659,54 @@ def _decode_step(payload: bytes, index: int) -> StepRecord:
         reward=fields[3],
         success=bool(fields[4]),
         contacts=extras["contacts"],
+    )
+
+
+def _decode_compact(payload: bytes, index: int) -> StepRecord:
+    (_, number, server_time, duration, reward, success, n_state, n_action, flags, seq, t,
+     p0, p1, p2, q0, q1, q2, q3, engaged, gripper, device, order, n_contacts, names_size,
+     ) = _COMPACT.unpack_from(payload)  # fmt: skip
+    if number != index:
+        raise ValueError(f"step {number} where step {index} was due")
+    offset = _COMPACT.size
+    vectors = np.frombuffer(payload, "<f8", n_state + n_action, offset).copy()
+    offset += 8 * (n_state + n_action)
+    contacts: list[dict[str, Any]] = []
+    if n_contacts:
+        intensities = struct.unpack_from(f"<{n_contacts}d", payload, offset)
+        offset += 8 * n_contacts
+        names = payload[offset : offset + names_size].decode().split("\x00")
+        offset += names_size
+        if len(names) != 2 * n_contacts:
+            raise ValueError("contact names do not match their count")
+        contacts = [
+            {"robot_part": names[2 * i], "object": names[2 * i + 1], "intensity": intensities[i]}
+            for i in range(n_contacts)
+        ]
+    rest = json.loads(payload[offset:]) if offset < len(payload) else {}
+    if flags & _COMMAND_PACKED:
+        values = {
+            "seq": seq,
+            "t": t,
+            "device": _DEVICES[device],
+            "position": [p0, p1, p2],
+            "quaternion": [q0, q1, q2, q3],
+            "engaged": engaged,
+            "gripper": bool(gripper) if flags & _GRIPPER_BOOL else gripper,
+        }
+        command = {_COMMAND_KEYS[key]: values[_COMMAND_KEYS[key]] for key in order}
+    else:
+        command = rest["command"]
+    return StepRecord(
+        index=index,
+        state=vectors[:n_state],
+        action=vectors[n_state:],
+        command=command,
+        server_time=server_time,
+        step_duration_s=duration,
+        reward=reward,
+        success=bool(success),
+        contacts=contacts if flags & _CONTACTS_PACKED else rest["contacts"],
     )
 
 

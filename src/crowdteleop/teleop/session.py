@@ -212,18 +212,19 @@ class TeleopSession:
         started_wall, started = time.time(), time.perf_counter()
         step = self.teleop.step(command)
         duration = time.perf_counter() - started
-        if recording:
+        if recording:  # the recorder validates, converts and copies; nothing to do here
+            result = step.result
             outcome = self.tracker.record(
                 StepRecord(
                     index=self.tracker.steps,
                     state=state,
-                    action=np.asarray(step.action, dtype=float),
+                    action=step.action,
                     command=raw,
                     server_time=started_wall,
                     step_duration_s=duration,
-                    reward=float(step.result.reward),
-                    success=bool(step.result.success),
-                    contacts=[vars(c) for c in step.result.contacts],
+                    reward=result.reward,
+                    success=result.success,
+                    contacts=list(map(vars, result.contacts)),
                 )
             )
             if outcome is not None:
