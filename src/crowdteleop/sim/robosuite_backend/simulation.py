@@ -125,7 +125,14 @@ class RobosuiteSimulation:
 
     # --- state -----------------------------------------------------------------------------
     def get_state(self) -> np.ndarray:
-        return np.array(self._env.sim.get_state().flatten())
+        """[time, qpos, qvel], robosuite's flattened layout, written straight from MjData:
+        the teleop server takes one every control step for the recording."""
+        data, nq = self._data, self._model.nq
+        state = np.empty(1 + nq + self._model.nv)
+        state[0] = data.time
+        state[1 : 1 + nq] = data.qpos
+        state[1 + nq :] = data.qvel
+        return state
 
     def set_state(self, state: np.ndarray) -> None:
         state = validate_state(state, 1 + self._model.nq + self._model.nv)
