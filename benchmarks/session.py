@@ -30,6 +30,7 @@ from crowdteleop.control import ControlConfig, DeviceCommand, Teleoperator
 from crowdteleop.control.scripted import ScriptedOperator
 from crowdteleop.control.scripted.episode import SUCCESS_HOLD_STEPS
 from crowdteleop.sim import SimConfig, get_task, make_simulation
+from crowdteleop.teleop.video import YuvConverter
 from sim import _console, _parse_tasks, facts_table
 
 app = typer.Typer(add_completion=False)
@@ -93,6 +94,7 @@ class Session:
         self.busy, self.camera = busy, opts["camera"]
         self.size = (opts["width"], opts["height"])
         self.codec = make_encoder(*self.size, round(1.0 / self.sim.control_dt))
+        self.yuv = YuvConverter()
         self.max_steps = round(get_task(task).time_limit_s / self.sim.control_dt)
         self.previous: np.ndarray | None = None
         self.seed = self.pts = 0
@@ -120,7 +122,7 @@ class Session:
             or (self.previous is not None and np.array_equal(frame, self.previous))
         )
         if not unchanged:
-            video = av.VideoFrame.from_ndarray(frame, format="rgb24").reformat(format="yuv420p")
+            video = self.yuv.convert(frame)  # as the teleop server converts: one swscale context
             video.pts = self.pts
             self.codec.encode(video)  # packets discarded: sending is not measured here
             self.encoded += 1

@@ -44,7 +44,12 @@ from crowdteleop.teleop.protocol import (
 from crowdteleop.teleop.report import report_episode
 from crowdteleop.teleop.session import TeleopSession, TickResult
 from crowdteleop.teleop.telemetry import SessionTelemetry
-from crowdteleop.teleop.video import FrameSource, SimVideoTrack, configure_encoder_bitrates
+from crowdteleop.teleop.video import (
+    FrameSource,
+    SimVideoTrack,
+    YuvConverter,
+    configure_encoder_bitrates,
+)
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +74,7 @@ class TeleopServer:
         self.config = config
         self.peers: dict[str, Peer] = {}
         self.frames = FrameSource()
+        self._keepalive_yuv = YuvConverter()
         self.telemetry = SessionTelemetry()
         self.clock = FixedRateClock(config.sim.control_hz)
         self.departed_errors: Counter[str] = Counter()
@@ -353,7 +359,10 @@ class TeleopServer:
         if not result.image_changed and now - self._last_publish < keepalive:
             return
         self._last_publish = now
-        frame = await self.frames.publish(result.image, result.command_seq)
+        # A keep-alive re-sends the picture as a new frame: a frame object is never given two
+        # timestamps, since an encoder thread may still be reading the previous one.
+        video_frame = result.video_frame or self._keepalive_yuv.convert(result.image)
+        frame = await self.frames.publish(video_frame, result.command_seq)
         self.telemetry.frame_published()
         tag = FrameTag(pts=frame.pts, command_seq=frame.command_seq, server_time=frame.server_time)
         for peer in self.peers.values():

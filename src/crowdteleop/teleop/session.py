@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from av import VideoFrame
 
 from crowdteleop.control.teleoperator import Teleoperator
 from crowdteleop.data.recording import StepRecord
@@ -25,6 +26,7 @@ from crowdteleop.sim.types import ContactEvent, Pose, TaskProgress
 from crowdteleop.teleop.commands import CommandBoard
 from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.episode import EpisodeTracker, FinishedEpisode, Outcome, store_episode
+from crowdteleop.teleop.video import YuvConverter
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +46,7 @@ class TickResult:
     haptics: list[ContactEvent]
     privileged: dict[str, Any] | None = None
     step_index: int = 0
+    video_frame: VideoFrame | None = None  # the image as the encoder takes it, when it changed
 
 
 @dataclass
@@ -76,6 +79,7 @@ class TeleopSession:
         self.task = get_task(config.sim.task)
         self._executor = executor
         self._haptics = _HapticFilter()
+        self._yuv = YuvConverter()
         self._seed = config.seed
         self._last_image: np.ndarray | None = None
         self._pending: list[str] = []
@@ -240,6 +244,7 @@ class TeleopSession:
         return TickResult(
             image=image,
             image_changed=changed,
+            video_frame=self._yuv.convert(image) if changed else None,
             command_seq=command.seq,
             success=step.result.success,
             progress=step.result.progress,
