@@ -21,11 +21,13 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
 import psutil
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.ready import wait_ready
 
 TOKEN = "bench-token-1"
 ADMIN = "bench-admin-1"
@@ -125,23 +127,6 @@ def _start_server(directory: Path, index: int, task: str) -> subprocess.Popen:
     return process
 
 
-def _await_ready(process: subprocess.Popen, timeout: float = 180) -> str:
-    found: list[str] = []
-
-    def read() -> None:
-        for line in process.stdout:
-            if line.startswith("READY "):
-                found.append(line.split()[1])
-                return
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    reader.join(timeout)
-    if not found:
-        raise RuntimeError("a teleop server did not start")
-    return found[0]
-
-
 async def _telemetry(url: str) -> dict:
     import aiohttp
 
@@ -166,7 +151,7 @@ def measure(n: int, task: str, warmup: float, seconds: float) -> dict:
         servers = [_start_server(directory, i, task) for i in range(n)]
         clients: list[subprocess.Popen] = []
         try:
-            urls = [_await_ready(process) for process in servers]
+            urls = [wait_ready(process, None, 180.0, "a teleop server") for process in servers]
             for i, url in enumerate(urls):
                 clients.append(
                     subprocess.Popen(

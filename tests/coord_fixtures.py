@@ -11,7 +11,6 @@ import secrets
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -25,6 +24,7 @@ from aiohttp import web
 from crowdteleop.coord.app import create_app
 from crowdteleop.coord.config import CoordConfig
 from crowdteleop.teleop.config import TeleopConfig
+from tests.ready import wait_ready
 
 ADMIN = "admin-token-for-tests-0123456789"
 POSTGRES_ADMIN_URL = os.environ.get(
@@ -237,7 +237,7 @@ def coord_server(tmp_path: Path, *args: str, **config: Any) -> Iterator[CoordPro
     command += ["--admin-token", ADMIN, *args]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=log_file, text=True)
     try:
-        url = _wait_ready(process, log_path)
+        url = wait_ready(process, log_path, 60.0, "coordinator")
         yield CoordProcess(url, process, log_path, data_dir)
     finally:
         if process.poll() is None:
@@ -248,26 +248,6 @@ def coord_server(tmp_path: Path, *args: str, **config: Any) -> Iterator[CoordPro
                 process.kill()
                 process.wait()
         log_file.close()
-
-
-def _wait_ready(process: subprocess.Popen[str], log_path: Path, timeout: float = 60.0) -> str:
-    found: list[str] = []
-
-    def read() -> None:
-        assert process.stdout is not None
-        for line in process.stdout:
-            if line.startswith("READY ") and not found:
-                found.append(line.split()[1])
-        # keep draining so the child never blocks on a full pipe
-
-    threading.Thread(target=read, daemon=True).start()
-    deadline = time.monotonic() + timeout
-    while not found and time.monotonic() < deadline and process.poll() is None:
-        time.sleep(0.05)
-    if not found:
-        process.kill()
-        raise RuntimeError(f"coordinator did not start:\n{log_path.read_text()[-3000:]}")
-    return found[0]
 
 
 def pid_alive(pid: int) -> bool:

@@ -9,7 +9,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -17,6 +16,8 @@ from pathlib import Path
 from typing import Any
 
 import aiohttp
+
+from tests.ready import wait_ready
 
 TOKEN = "worker-token-123"
 ADMIN_TOKEN = "admin-token-456"
@@ -91,7 +92,7 @@ def teleop_server(tmp_path: Path, **overrides: Any) -> Iterator[ServerProcess]:
         text=True,
     )
     try:
-        url = _wait_ready(process, log_path)
+        url = wait_ready(process, log_path, 90.0, "teleop server")
         yield ServerProcess(url, process, record_dir, log_path)
     finally:
         if process.poll() is None:
@@ -102,25 +103,6 @@ def teleop_server(tmp_path: Path, **overrides: Any) -> Iterator[ServerProcess]:
                 process.kill()
                 process.wait()
         log_file.close()
-
-
-def _wait_ready(process: subprocess.Popen[str], log_path: Path, timeout: float = 90.0) -> str:
-    found: list[str] = []
-
-    def read() -> None:
-        assert process.stdout is not None
-        for line in process.stdout:
-            if line.startswith("READY "):
-                found.append(line.split()[1])
-                return
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    reader.join(timeout)
-    if not found:
-        process.kill()
-        raise RuntimeError(f"teleop server did not start:\n{log_path.read_text()[-3000:]}")
-    return found[0]
 
 
 def run(coroutine: Any, timeout: float = 240.0) -> Any:
