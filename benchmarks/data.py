@@ -24,7 +24,6 @@ from rich.console import Console
 from rich.table import Table
 
 from crowdteleop.data.dataset import build_dataset
-from crowdteleop.data.recording import StepRecord
 from crowdteleop.data.s3 import S3Config, S3Storage
 from crowdteleop.data.scripted import scripted_rig
 
@@ -44,7 +43,7 @@ def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
     from crowdteleop.control.scripted import ScriptedOperator, run_episode
     from crowdteleop.data.versions import runtime_versions
     from crowdteleop.teleop.commands import CommandBoard
-    from crowdteleop.teleop.episode import EpisodeTracker
+    from crowdteleop.teleop.episode import EpisodeTracker, step_record
     from crowdteleop.teleop.protocol import PoseCommand
 
     names = ("step", "record", "step_cpu", "record_cpu", "state_cpu", "raw_cpu")
@@ -92,19 +91,8 @@ def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
                 duration = time.perf_counter() - started
                 record_wall, record_cpu = time.perf_counter(), time.thread_time()
                 if recording:
-                    result = step.result
                     tracker.record(
-                        StepRecord(
-                            index=tracker.steps,
-                            state=state,
-                            action=step.action,
-                            command=raw,
-                            server_time=started_wall,
-                            step_duration_s=duration,
-                            reward=result.reward,
-                            success=result.success,
-                            contacts=list(map(vars, result.contacts)),
-                        )
+                        step_record(tracker.steps, state, step, raw, started_wall, duration)
                     )
                 end_wall, end_cpu = time.perf_counter(), time.thread_time()
                 if recording:  # steps before the clutch is first pressed are not recorded

@@ -8,7 +8,6 @@ import contextlib
 import json
 import os
 import secrets
-import signal
 import subprocess
 import sys
 import time
@@ -24,7 +23,7 @@ from aiohttp import web
 from crowdteleop.coord.app import create_app
 from crowdteleop.coord.config import CoordConfig
 from crowdteleop.teleop.config import TeleopConfig
-from tests.ready import wait_ready
+from tests.ready import stop_gracefully, wait_ready
 
 ADMIN = "admin-token-for-tests-0123456789"
 POSTGRES_ADMIN_URL = os.environ.get(
@@ -240,13 +239,7 @@ def coord_server(tmp_path: Path, *args: str, **config: Any) -> Iterator[CoordPro
         url = wait_ready(process, log_path, 60.0, "coordinator")
         yield CoordProcess(url, process, log_path, data_dir)
     finally:
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-            try:
-                process.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
+        stop_gracefully(process, 30)
         log_file.close()
 
 

@@ -3,6 +3,7 @@ print once they take requests), and keep draining its stdout so it never blocks 
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import threading
 import time
@@ -30,3 +31,15 @@ def wait_ready(
         tail = log_path.read_text(errors="replace")[-3000:] if log_path else ""
         raise RuntimeError(f"{what} did not start:\n{tail}")
     return found[0]
+
+
+def stop_gracefully(process: subprocess.Popen[str], timeout: float) -> None:
+    """SIGINT (the servers finish their recordings and stop their children), then SIGKILL."""
+    if process.poll() is not None:
+        return
+    process.send_signal(signal.SIGINT)
+    try:
+        process.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()

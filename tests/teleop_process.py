@@ -17,7 +17,7 @@ from typing import Any
 
 import aiohttp
 
-from tests.ready import wait_ready
+from tests.ready import stop_gracefully, wait_ready
 
 TOKEN = "worker-token-123"
 ADMIN_TOKEN = "admin-token-456"
@@ -95,13 +95,7 @@ def teleop_server(tmp_path: Path, **overrides: Any) -> Iterator[ServerProcess]:
         url = wait_ready(process, log_path, 90.0, "teleop server")
         yield ServerProcess(url, process, record_dir, log_path)
     finally:
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-            try:
-                process.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
+        stop_gracefully(process, 20)
         log_file.close()
 
 

@@ -8,6 +8,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+
+from crowdteleop.control.teleoperator import TeleopStep
 from crowdteleop.data.recording import EpisodeRecorder, StepRecord
 from crowdteleop.data.s3 import StorageUnavailableError
 from crowdteleop.data.spool import SpooledStorage
@@ -103,6 +106,29 @@ class EpisodeTracker:
         self._recorder = None
         self.state = "stopped" if stop else "ready"
         return finished
+
+
+def step_record(
+    index: int,
+    state: np.ndarray,
+    step: TeleopStep,
+    raw_command: dict[str, Any],
+    server_time: float,
+    duration_s: float,
+) -> StepRecord:
+    """What the recorder stores of one control step (the recorder validates and copies)."""
+    result = step.result
+    return StepRecord(
+        index=index,
+        state=state,
+        action=step.action,
+        command=raw_command,
+        server_time=server_time,
+        step_duration_s=duration_s,
+        reward=result.reward,
+        success=result.success,
+        contacts=list(map(vars, result.contacts)),
+    )
 
 
 def store_episode(

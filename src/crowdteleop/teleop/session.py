@@ -18,14 +18,19 @@ import numpy as np
 from av import VideoFrame
 
 from crowdteleop.control.teleoperator import Teleoperator
-from crowdteleop.data.recording import StepRecord
 from crowdteleop.data.storage import EpisodeStorage
 from crowdteleop.sim.factory import make_simulation
 from crowdteleop.sim.registry import get_task
 from crowdteleop.sim.types import ContactEvent, Pose, TaskProgress
 from crowdteleop.teleop.commands import CommandBoard
 from crowdteleop.teleop.config import TeleopConfig
-from crowdteleop.teleop.episode import EpisodeTracker, FinishedEpisode, Outcome, store_episode
+from crowdteleop.teleop.episode import (
+    EpisodeTracker,
+    FinishedEpisode,
+    Outcome,
+    step_record,
+    store_episode,
+)
 from crowdteleop.teleop.video import YuvConverter
 
 log = logging.getLogger(__name__)
@@ -217,19 +222,8 @@ class TeleopSession:
         step = self.teleop.step(command)
         duration = time.perf_counter() - started
         if recording:  # the recorder validates, converts and copies; nothing to do here
-            result = step.result
             outcome = self.tracker.record(
-                StepRecord(
-                    index=self.tracker.steps,
-                    state=state,
-                    action=step.action,
-                    command=raw,
-                    server_time=started_wall,
-                    step_duration_s=duration,
-                    reward=result.reward,
-                    success=result.success,
-                    contacts=list(map(vars, result.contacts)),
-                )
+                step_record(self.tracker.steps, state, step, raw, started_wall, duration)
             )
             if outcome is not None:
                 self._end(outcome)
@@ -240,7 +234,8 @@ class TeleopSession:
         if changed and self._last_image is not None and image.shape == self._last_image.shape:
             changed = not np.array_equal(image, self._last_image)
         self._last_image = image
-        privileged = {**_privileged(sim), "scene": self._seed} if want_privileged else None
+        hand = sim.robot_state().end_effector  # read once: status and privileged state share it
+        privileged = {**_privileged(sim, hand), "scene": self._seed} if want_privileged else None
         return TickResult(
             image=image,
             image_changed=changed,
@@ -248,7 +243,7 @@ class TeleopSession:
             command_seq=command.seq,
             success=step.result.success,
             progress=step.result.progress,
-            end_effector=sim.robot_state().end_effector.position.copy(),
+            end_effector=hand.position.copy(),
             haptics=self._haptics.select(step.result.contacts, time.monotonic()),
             privileged=privileged,
             step_index=self.tracker.steps,
@@ -290,11 +285,11 @@ class TeleopSession:
         self._close_storage()
 
 
-def _privileged(sim: Any) -> dict[str, Any]:
+def _privileged(sim: Any, hand: Pose) -> dict[str, Any]:
     def flat(pose: Pose) -> list[float]:
         return [*pose.position.tolist(), *pose.quaternion.tolist()]
 
     return {
-        "end_effector": flat(sim.robot_state().end_effector),
+        "end_effector": flat(hand),
         "objects": {name: flat(pose) for name, pose in sim.object_poses().items()},
     }
