@@ -139,10 +139,6 @@ def test_bad_steps_raise_and_leave_the_recording_intact(tmp_path):
         recorder.append(bad(state=good.state.reshape(1, -1)))
     with pytest.raises(InvalidRecordError, match="out of order"):
         recorder.append(bad(index=7))
-    with pytest.raises(InvalidRecordError, match="JSON"):
-        recorder.append(bad(command={"t": float("nan")}))
-    with pytest.raises(InvalidRecordError, match="JSON"):
-        recorder.append(bad(contacts=[{"object": object()}]))
     with pytest.raises(InvalidRecordError, match="reward"):
         recorder.append(bad(reward=float("nan")))
     with pytest.raises(InvalidRecordError, match="outcome"):
@@ -158,6 +154,21 @@ def test_bad_steps_raise_and_leave_the_recording_intact(tmp_path):
     with pytest.raises(RuntimeError):
         recorder.finalize("success")
     assert read_episode(path).outcome == "timeout"
+
+
+def test_a_command_or_contacts_json_refuses_are_recorded_as_a_counted_note(tmp_path):
+    recorder = record(tmp_path, 3, flush_interval_s=0.0)
+    good = child.make_step(3)
+    recorder.append(dataclasses.replace(good, command={"t": float("nan")}))
+    recorder.append(dataclasses.replace(child.make_step(4), contacts=[{"object": object()}]))
+
+    assert (recorder.steps, recorder.flushed_steps, recorder.notes) == (5, 5, 2)
+    episode = read_episode(recorder.finalize("success"))
+    assert episode.states.shape[0] == 5
+    np.testing.assert_array_equal(episode.states[3], good.state)  # the step itself is kept
+    assert "JSON" in episode.commands[3]["unrecordable"]
+    assert "JSON" in episode.contacts[4][0]["unrecordable"]
+    assert episode.commands[4] == child.make_step(4).command
 
 
 def test_a_failed_flush_keeps_the_log_whole_and_retries(tmp_path, monkeypatch):
@@ -469,7 +480,7 @@ def test_session_steps_are_packed_without_json_and_come_back_exactly(tmp_path):
         )
 
 
-def test_commands_that_do_not_pack_are_kept_as_json_or_refused(tmp_path):
+def test_commands_that_do_not_pack_are_kept_as_json_or_as_a_note(tmp_path):
     recorder = EpisodeRecorder(tmp_path, "odd", {"k": 1}, flush_interval_s=0.0)
     odd = [
         {"t": 5},  # an int where a float packs
@@ -489,20 +500,23 @@ def test_commands_that_do_not_pack_are_kept_as_json_or_refused(tmp_path):
         recorder.append(dataclasses.replace(step, command=command))
     partial = read_partial(recorder.wal_path)
     assert [json.dumps(c) for c in partial.commands] == [json.dumps(c) for c in expected]
-    bad = session_step(len(odd))
-    for command in (
-        {**bad.command, "position": [0.0, float("nan"), 0.0]},
-        {**bad.command, "t": float("inf")},
-        {**bad.command, "gripper": float("-inf")},
-    ):
-        with pytest.raises(InvalidRecordError, match="JSON"):
-            recorder.append(dataclasses.replace(bad, command=command))
-    for contacts in (
+    refused_commands = (
+        {**session_step(0).command, "position": [0.0, float("nan"), 0.0]},
+        {**session_step(0).command, "t": float("inf")},
+        {**session_step(0).command, "gripper": float("-inf")},
+    )
+    for command in refused_commands:
+        recorder.append(dataclasses.replace(session_step(recorder.steps), command=command))
+    refused_contacts = (
         [{"robot_part": "a", "object": "b", "intensity": float("nan")}],
         [{"robot_part": "a", "object": "b", "intensity": 1.0, "x": object()}],
-    ):
-        with pytest.raises(InvalidRecordError, match="JSON"):
-            recorder.append(dataclasses.replace(bad, contacts=contacts))
+    )
+    for contacts in refused_contacts:
+        recorder.append(dataclasses.replace(session_step(recorder.steps), contacts=contacts))
+    assert recorder.notes == len(refused_commands) + len(refused_contacts)
+    notes = read_partial(recorder.wal_path)
+    assert all("JSON" in c["unrecordable"] for c in notes.commands[len(odd) :][:3])
+    assert all("JSON" in c[0]["unrecordable"] for c in notes.contacts[len(odd) + 3 :])
     odd_contacts = [
         [{"robot_part": "a\x00b", "object": "c", "intensity": 1.0}],  # NUL: as JSON
         [{"object": "c", "robot_part": "a", "intensity": 1.0}],  # other key order

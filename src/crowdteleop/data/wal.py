@@ -5,15 +5,15 @@ Write-ahead log (``<episode_id>.wal``): the magic ``CTWAL02\\n``, then records f
 the header (``H`` + JSON: episode id, creation time, metadata with the MJCF); every other one a
 step (``C`` + index, times, reward, success, state and action sizes, flags, the device
 command's numbers, contact count; the raw float64 bytes of state and action; contact
-intensities and names; JSON only of a command or contacts that do not fit that layout).
-Version 1 logs (``CTWAL01\\n``, steps as ``S`` records with the command and contacts in JSON)
-are still read. Binary rather than JSON lines because (1) states and actions are stored as
-their IEEE bits, so replay is exact by construction (-0.0, subnormals and all); (2) the
-checksum tells a torn or garbage tail (a kill mid-write, or the zero-filled block a power loss
-can leave) from a record, where a damaged JSON number could still parse; (3) it is cheap on the
-control loop, which only validates and copies a step: packing, framing and checksums happen
-when the buffer is flushed, by a flusher thread once ``flush_interval_s`` has passed (so
-neither they nor the fsync stall the control loop): a crash loses at most that.
+intensities and names; JSON only of a command or contacts that do not fit that layout; see
+``wal_codec``). Version 1 logs (``CTWAL01\\n``, steps as ``S`` records with the command and
+contacts in JSON) are still read. Binary rather than JSON lines because (1) states and actions
+are stored as their IEEE bits, so replay is exact by construction (-0.0, subnormals and all);
+(2) the checksum tells a torn or garbage tail (a kill mid-write, or the zero-filled block a
+power loss can leave) from a record, where a damaged JSON number could still parse; (3) it is
+cheap on the control loop, which only validates a step's numbers and keeps it: packing, framing
+and checksums happen when the buffer is flushed, by a flusher thread once ``flush_interval_s``
+has passed (so neither they nor the fsync stall the control loop): a crash loses at most that.
 
 A live recorder holds ``flock`` on its log, so ``recover_orphans`` never touches an episode
 that is still being recorded, and the lock dies with a killed process. The finished episode
@@ -25,6 +25,7 @@ recovery resolves in favour of the finished file).
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import json
 import logging
@@ -56,6 +57,7 @@ from crowdteleop.data.episode_file import (
     write_episode,
 )
 from crowdteleop.data.storage import fsync_directory
+from crowdteleop.data.wal_codec import FRAME, decode_step, encode_steps, frame
 from crowdteleop.errors import InvalidActionError, InvalidStateError
 
 log = logging.getLogger(__name__)
@@ -64,26 +66,7 @@ WAL_MAGIC = b"CTWAL02\n"
 WAL_MAGIC_V1 = b"CTWAL01\n"  # read, never written: steps only as "S" records
 WAL_SUFFIX = ".wal"
 
-_FRAME = struct.Struct("<II")  # payload length, CRC-32 of payload
-_STEP = struct.Struct("<qdddBII")  # index, server_time, step_duration_s, reward, success, S, A
-# A compact step ("C", version 2): the fields of _STEP, flags, the device command's numbers,
-# the contacts' count and string bytes; then state, action, contact intensities, contact
-# strings, and JSON of whatever is not packed (see _encode).
-_COMPACT = struct.Struct("<cqdddBIIBqd3d4d?dB7sHI")
-_COMMAND_PACKED, _GRIPPER_BOOL, _CONTACTS_PACKED = 1, 2, 4  # flags
-# A command is packed when it has exactly these keys (in any order, kept) with exact types:
-# seq int, t float, device one of _DEVICES, position 3 and quaternion 4 floats in lists,
-# engaged bool, gripper float or bool; all finite. Anything else is stored as JSON.
-_COMMAND_KEYS = ("seq", "t", "device", "position", "quaternion", "engaged", "gripper")
-_DEVICES = (None, "phone", "keyboard", "vr", "spacemouse", "gamepad", "bot", "scripted")
-_DEVICE_CODES = {device: code for code, device in enumerate(_DEVICES)}
-_KEY_ORDERS: dict[tuple[str, ...], bytes] = {}  # a command's key tuple -> its order code
-_CONTACT_KEYS = ("robot_part", "object", "intensity")
 _F8 = np.dtype("<f8")
-# A validated step awaiting its flush: _COMPACT's fields, state + action (the recorder's own
-# copy), and the bytes after them (contact intensities and names, JSON of the rest).
-_Entry = tuple[tuple[Any, ...], np.ndarray, bytes]
-_INT64 = (-(2**63), 2**63)
 _MAX_PAYLOAD = 64 * 1024 * 1024  # larger length fields are garbage, not records
 _EPISODE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")
 
@@ -92,7 +75,7 @@ class EpisodeRecorder:
     """Records one episode: ``append`` every control step, then ``finalize`` with the outcome.
 
     Safe to call from several threads (one lock, held by ``append`` for the time of one step's
-    validation and copy; the fsync happens outside it).
+    validation; packing and the fsync happen outside it).
     """
 
     def __init__(
@@ -120,21 +103,23 @@ class EpisodeRecorder:
         self.directory.mkdir(parents=True, exist_ok=True)
         if self.episode_path.exists():
             raise RecordingError(f"episode {episode_id} is already recorded: {self.episode_path}")
-        self._fd = _create_wal(self.wal_path, WAL_MAGIC + _frame(header_payload))
+        self._fd = _create_wal(self.wal_path, WAL_MAGIC + frame(header_payload))
         self._lock = threading.Lock()  # state and buffer; held briefly by append
         self._io = threading.Lock()  # writes to the log; always taken before _lock
         self._due = threading.Event()
         self._flusher: threading.Thread | None = None
         self._deferred: RecordingError | None = None  # a background flush's failure
         self._buffer = bytearray()  # framed records not yet durable
-        self._entries: list[_Entry] = []  # validated steps, framed by the next flush
+        self._entries: list[StepRecord] = []  # validated steps, packed by the next flush
+        self._notes = 0  # commands or contact lists stored as a note (JSON refused them)
         self._durable_size = os.fstat(self._fd).st_size
         self._last_flush = time.monotonic()
         self._steps = 0
         self._flushed_steps = 0
         self._sizes: tuple[int, int] | None = None  # state and action sizes, from step 0
         self._shapes: tuple[tuple[int], tuple[int]] | None = None  # the same as array shapes
-        self._zeros = np.zeros(0)  # S + A zeros: x.dot(zeros) is NaN unless x is all finite
+        # zeros of the state's and the action's size: x.dot(zeros) is NaN unless x is finite
+        self._zeros = np.zeros(0), np.zeros(0)
         self._closed = False
 
     @property
@@ -148,6 +133,12 @@ class EpisodeRecorder:
         return self._flushed_steps
 
     @property
+    def notes(self) -> int:
+        """Commands or contact lists stored as a note naming the problem, as JSON refused them
+        (NaN, objects): the step itself is recorded."""
+        return self._notes
+
+    @property
     def closed(self) -> bool:
         return self._closed
 
@@ -158,14 +149,17 @@ class EpisodeRecorder:
         control loop pays for the append alone (``flushed_steps`` grows once the fsync is
         done); with 0 every append is durable before it returns.
 
-        A bad record raises before anything is buffered, so what was recorded stays intact.
+        A bad record (index, state, action, times, reward) raises before anything is buffered,
+        so what was recorded stays intact. The recorder keeps the record's arrays and dicts
+        until they are flushed: do not change them after appending. A command or contact list
+        JSON cannot store is recorded as a note (``notes`` counts them).
         ``RecordingError`` means the step was buffered but a flush failed (a full disk): the
         log was cut back to whole records and the next flush retries.
         """
         with self._lock:
             if self._closed:
                 self._check_open()
-            self._entries.append(self._encode(record))
+            self._entries.append(self._check(record))
             self._steps += 1
             deferred, self._deferred = self._deferred, None
             due = time.monotonic() - self._last_flush >= self.flush_interval_s
@@ -241,7 +235,9 @@ class EpisodeRecorder:
                     pending, steps = bytes(self._buffer), self._steps
                     self._buffer.clear()
                     entries, self._entries = self._entries, []
-                pending += _frames(entries)  # outside _lock: appends go on meanwhile
+                packed, notes = encode_steps(entries)  # outside _lock: appends go on
+                pending += packed
+                self._notes += notes
                 if not pending:
                     continue
                 try:
@@ -257,7 +253,9 @@ class EpisodeRecorder:
         """Write and fsync the buffer with ``_io`` and ``_lock`` held."""
         self._last_flush = time.monotonic()
         if self._entries:
-            self._buffer += _frames(self._entries)
+            packed, notes = encode_steps(self._entries)
+            self._buffer += packed
+            self._notes += notes
             self._entries = []
         if not self._buffer:
             return
@@ -293,13 +291,14 @@ class EpisodeRecorder:
         self._closed = True
         self._due.set()  # the flusher sees the recorder closed and ends
 
-    def _encode(self, record: StepRecord) -> _Entry:
-        """The step validated and copied, ready for ``_frames``; raises if the record is bad.
+    def _check(self, record: StepRecord) -> StepRecord:
+        """The step as it will be packed; raises, before anything is buffered, if it is bad.
 
-        The hot path of the control loop: one concatenation (a copy) and one dot product check
-        state and action, the device command's numbers are checked and taken as they are, JSON
-        only for what does not fit the packed layout. Packing, framing and the checksum wait
-        for the flush (the flusher thread's, normally).
+        The hot path of the control loop, so only what decides whether the step is data: its
+        index, state and action (flat, float64, finite, the episode's sizes: two dot products)
+        and the scalars. No copy is made: the recorder owns the record's arrays and dicts from
+        here on (``step_record`` builds fresh ones every step). Packing the device command and
+        contacts, framing and checksums wait for the flush (the flusher thread's, normally).
         """
         index = record.index
         if index != self._steps:
@@ -310,62 +309,35 @@ class EpisodeRecorder:
         try:
             if (state.shape, action.shape) != self._shapes:
                 raise ValueError("first step, or other sizes")
-            vector = np.concatenate((state, action))
-            if vector.dtype is not _F8 or not math.isfinite(vector.dot(self._zeros)):
-                raise ValueError("not float64, or not finite")  # (checked again, in detail)
-            state_size = state.size
+            if state.dtype is not _F8 or action.dtype is not _F8:
+                raise ValueError("not float64")
+            zeros_s, zeros_a = self._zeros
+            if not math.isfinite(state.dot(zeros_s) + action.dot(zeros_a)):
+                raise ValueError("not finite")  # (checked again, in detail)
         except (AttributeError, TypeError, ValueError):
-            vector, state_size = self._checked_vectors(state, action)
+            state, action = self._checked_vectors(state, action)
+            record = dataclasses.replace(record, state=state, action=action)
         try:
-            times = float(record.server_time), float(record.step_duration_s)
-            reward = float(record.reward)
+            total = float(record.server_time) + float(record.step_duration_s)
+            total += float(record.reward)
         except (TypeError, ValueError):
-            times, reward = (0.0, 0.0), math.nan
-        if not math.isfinite(times[0] + times[1] + reward):
-            times = (
-                _finite_scalar(record.server_time, "server_time"),
-                _finite_scalar(record.step_duration_s, "step_duration_s"),
-            )
-            reward = _finite_scalar(record.reward, "reward")  # only overflowed the sum
-        command, contacts = record.command, record.contacts
-        if not isinstance(command, dict) or not isinstance(contacts, list):
+            total = math.nan
+        if not math.isfinite(total):
+            _finite_scalar(record.server_time, "server_time")
+            _finite_scalar(record.step_duration_s, "step_duration_s")
+            _finite_scalar(record.reward, "reward")  # each finite: only their sum overflowed
+        if not isinstance(record.command, dict) or not isinstance(record.contacts, list):
             raise InvalidRecordError("command must be a dict and contacts a list")
-        flags, numbers = _pack_command(command)
-        n_contacts, tail, names_size = _pack_contacts(contacts)
-        if n_contacts >= 0:
-            flags |= _CONTACTS_PACKED
-        if not flags & _COMMAND_PACKED or n_contacts < 0:  # JSON for what did not pack
-            rest: dict[str, Any] = {} if flags & _COMMAND_PACKED else {"command": command}
-            if n_contacts < 0:
-                n_contacts, rest["contacts"] = 0, contacts
-            tail += to_json(rest, "step").encode()
-        action_size = vector.size - state_size
         if self._sizes is None:  # the first step: nothing can fail from here on
-            self._set_sizes(state_size, action_size)
-        return (
-            (
-                b"C",
-                index,
-                *times,
-                reward,
-                bool(record.success),
-                state_size,
-                action_size,
-                flags,
-                *numbers,
-                n_contacts,
-                names_size,
-            ),
-            vector,
-            tail,
-        )
+            self._set_sizes(state.size, action.size)
+        return record
 
     def _set_sizes(self, state_size: int, action_size: int) -> None:
         self._sizes = state_size, action_size
         self._shapes = (state_size,), (action_size,)
-        self._zeros = np.zeros(state_size + action_size)
+        self._zeros = np.zeros(state_size), np.zeros(action_size)
 
-    def _checked_vectors(self, state: Any, action: Any) -> tuple[np.ndarray, int]:
+    def _checked_vectors(self, state: Any, action: Any) -> tuple[np.ndarray, np.ndarray]:
         """State and action validated one by one (the first step, or anything unusual)."""
         state = _finite_vector(state, "state", InvalidStateError)
         action = _finite_vector(action, "action", InvalidActionError)
@@ -377,7 +349,7 @@ class EpisodeRecorder:
             raise InvalidActionError(
                 f"action has {action.size} entries, earlier steps of this episode {self._sizes[1]}"
             )
-        return np.concatenate((state, action)), state.size
+        return state, action
 
 
 def read_partial(path: Path) -> PartialEpisode:
@@ -486,19 +458,6 @@ def _create_wal(path: Path, head: bytes) -> int:
     return fd
 
 
-def _frame(payload: bytes) -> bytes:
-    return _FRAME.pack(len(payload), zlib.crc32(payload)) + payload
-
-
-def _frames(entries: list[_Entry]) -> bytes:
-    """Validated steps as framed "C" records."""
-    parts = []
-    for fields, vector, tail in entries:
-        payload = b"".join((_COMPACT.pack(*fields), vector.tobytes(), tail))
-        parts += (_FRAME.pack(len(payload), zlib.crc32(payload)), payload)
-    return b"".join(parts)
-
-
 def _parse_wal(data: bytes, path: Path) -> PartialEpisode:
     if not data.startswith((WAL_MAGIC, WAL_MAGIC_V1)):
         raise CorruptEpisodeError(f"{path} is not a crowdteleop write-ahead log")
@@ -513,7 +472,7 @@ def _parse_wal(data: bytes, path: Path) -> PartialEpisode:
     steps: list[StepRecord] = []
     for record_end, payload in records:
         try:
-            steps.append(_decode_step(payload, len(steps)))
+            steps.append(decode_step(payload, len(steps)))
         except (ValueError, KeyError, TypeError, IndexError, struct.error):
             break  # checksum fine but not our step: a bug or a foreign tail; stop trusting
         end = record_end
@@ -539,12 +498,12 @@ def _parse_wal(data: bytes, path: Path) -> PartialEpisode:
 def _records(data: bytes) -> Iterator[tuple[int, bytes]]:
     """(end offset, payload) of each whole record whose checksum holds, up to the first not."""
     offset = len(WAL_MAGIC)
-    while offset + _FRAME.size <= len(data):
-        length, crc = _FRAME.unpack_from(data, offset)
-        end = offset + _FRAME.size + length
+    while offset + FRAME.size <= len(data):
+        length, crc = FRAME.unpack_from(data, offset)
+        end = offset + FRAME.size + length
         if length > _MAX_PAYLOAD or end > len(data):
             return  # torn: the record was being written
-        payload = data[offset + _FRAME.size : end]
+        payload = data[offset + FRAME.size : end]
         if zlib.crc32(payload) != crc:
             return  # damaged: nothing after it can be trusted
         yield end, payload
@@ -559,155 +518,6 @@ def _decode_header(payload: bytes) -> dict[str, Any]:
         raise ValueError("header without episode id or metadata")
     float(header["created_at"])
     return header
-
-
-def _pack_command(command: dict[str, Any]) -> tuple[int, tuple[Any, ...]]:
-    """(flags, the _COMPACT fields) of a command that packs exactly, else (0, zeros)."""
-    order = _KEY_ORDERS.get(tuple(command)) or _key_order(command)
-    if order is None:
-        return 0, _NO_COMMAND
-    seq, t, gripper, engaged = command["seq"], command["t"], command["gripper"], command["engaged"]
-    position, quaternion = command["position"], command["quaternion"]
-    try:
-        p0, p1, p2 = position
-        q0, q1, q2, q3 = quaternion
-        device = _DEVICE_CODES[command["device"]]
-    except (TypeError, ValueError, KeyError):
-        return 0, _NO_COMMAND
-    if not (
-        type(seq) is int
-        and _INT64[0] <= seq < _INT64[1]
-        and type(engaged) is bool
-        and type(position) is list is type(quaternion)
-        and type(t) is float is type(p0) is type(p1) is type(p2)
-        and float is type(q0) is type(q1) is type(q2) is type(q3)
-        and math.isfinite(t + p0 + p1 + p2 + q0 + q1 + q2 + q3)  # NaN and inf: JSON refuses
-    ):
-        return 0, _NO_COMMAND
-    if type(gripper) is bool:
-        flags = _COMMAND_PACKED | _GRIPPER_BOOL
-    elif type(gripper) is float and math.isfinite(gripper):
-        flags = _COMMAND_PACKED
-    else:
-        return 0, _NO_COMMAND
-    return flags, (seq, t, p0, p1, p2, q0, q1, q2, q3, engaged, float(gripper), device, order)
-
-
-_NO_COMMAND = (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, 0.0, 0, bytes(7))
-
-
-def _key_order(command: dict[str, Any]) -> bytes | None:
-    """The order of a command's keys as indices into _COMMAND_KEYS, if they are those keys."""
-    keys = tuple(command)
-    if len(keys) != len(_COMMAND_KEYS) or set(keys) != set(_COMMAND_KEYS):
-        return None
-    order = bytes(_COMMAND_KEYS.index(key) for key in keys)
-    _KEY_ORDERS[keys] = order  # at most 7! entries
-    return order
-
-
-def _pack_contacts(contacts: list[Any]) -> tuple[int, bytes, int]:
-    """(count, intensities as float64 + NUL-joined UTF-8 names, size of the names) if they
-    pack exactly, else (-1, b"", 0)."""
-    if not contacts:
-        return 0, b"", 0
-    names: list[str] = []
-    intensities = []
-    for contact in contacts:
-        if type(contact) is not dict or tuple(contact) != _CONTACT_KEYS:
-            return _NOT_PACKED
-        part, other, intensity = contact.values()
-        if not (type(part) is str is type(other) and type(intensity) is float):
-            return _NOT_PACKED
-        names += (part, other)
-        intensities.append(intensity)
-    joined = "\x00".join(names)
-    if len(intensities) > 0xFFFF or joined.count("\x00") != len(names) - 1:
-        return _NOT_PACKED
-    if not math.isfinite(sum(intensities)):
-        return _NOT_PACKED
-    try:
-        encoded = joined.encode()
-    except UnicodeEncodeError:  # lone surrogates: JSON escapes them
-        return _NOT_PACKED
-    values = struct.pack(f"<{len(intensities)}d", *intensities)
-    return len(intensities), values + encoded, len(encoded)
-
-
-_NOT_PACKED = -1, b"", 0
-
-
-def _decode_step(payload: bytes, index: int) -> StepRecord:
-    if payload[:1] == b"C":
-        return _decode_compact(payload, index)
-    if payload[:1] != b"S":
-        raise ValueError("not a step record")
-    fields = _STEP.unpack_from(payload, 1)
-    if fields[0] != index:
-        raise ValueError(f"step {fields[0]} where step {index} was due")
-    n_state, n_action = fields[5:]
-    start = 1 + _STEP.size
-    vectors = np.frombuffer(payload, "<f8", n_state + n_action, start).copy()
-    extras = json.loads(payload[start + 8 * (n_state + n_action) :])
-    return StepRecord(
-        index=index,
-        state=vectors[:n_state],
-        action=vectors[n_state:],
-        command=extras["command"],
-        server_time=fields[1],
-        step_duration_s=fields[2],
-        reward=fields[3],
-        success=bool(fields[4]),
-        contacts=extras["contacts"],
-    )
-
-
-def _decode_compact(payload: bytes, index: int) -> StepRecord:
-    (_, number, server_time, duration, reward, success, n_state, n_action, flags, seq, t,
-     p0, p1, p2, q0, q1, q2, q3, engaged, gripper, device, order, n_contacts, names_size,
-     ) = _COMPACT.unpack_from(payload)  # fmt: skip
-    if number != index:
-        raise ValueError(f"step {number} where step {index} was due")
-    offset = _COMPACT.size
-    vectors = np.frombuffer(payload, "<f8", n_state + n_action, offset).copy()
-    offset += 8 * (n_state + n_action)
-    contacts: list[dict[str, Any]] = []
-    if n_contacts:
-        intensities = struct.unpack_from(f"<{n_contacts}d", payload, offset)
-        offset += 8 * n_contacts
-        names = payload[offset : offset + names_size].decode().split("\x00")
-        offset += names_size
-        if len(names) != 2 * n_contacts:
-            raise ValueError("contact names do not match their count")
-        contacts = [
-            {"robot_part": names[2 * i], "object": names[2 * i + 1], "intensity": intensities[i]}
-            for i in range(n_contacts)
-        ]
-    rest = json.loads(payload[offset:]) if offset < len(payload) else {}
-    if flags & _COMMAND_PACKED:
-        values = {
-            "seq": seq,
-            "t": t,
-            "device": _DEVICES[device],
-            "position": [p0, p1, p2],
-            "quaternion": [q0, q1, q2, q3],
-            "engaged": engaged,
-            "gripper": bool(gripper) if flags & _GRIPPER_BOOL else gripper,
-        }
-        command = {_COMMAND_KEYS[key]: values[_COMMAND_KEYS[key]] for key in order}
-    else:
-        command = rest["command"]
-    return StepRecord(
-        index=index,
-        state=vectors[:n_state],
-        action=vectors[n_state:],
-        command=command,
-        server_time=server_time,
-        step_duration_s=duration,
-        reward=reward,
-        success=bool(success),
-        contacts=contacts if flags & _CONTACTS_PACKED else rest["contacts"],
-    )
 
 
 def _stack(rows: list[np.ndarray]) -> np.ndarray:

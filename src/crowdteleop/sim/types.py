@@ -102,6 +102,18 @@ class ActionSpec:
         return np.clip(action, self.low, self.high)
 
 
+_STATE = mujoco.mjtState
+FLAT_STATE = _STATE.mjSTATE_TIME | _STATE.mjSTATE_QPOS | _STATE.mjSTATE_QVEL
+
+
+def flat_state(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """A new [time, qpos, qvel] vector (robosuite's flattened layout, MuJoCo's own state order),
+    filled by one ``mj_getState`` call: the teleop server takes one every control step."""
+    state = np.empty(1 + model.nq + model.nv)
+    mujoco.mj_getState(model, data, state, FLAT_STATE)
+    return state
+
+
 def validate_state(state: np.ndarray, size: int) -> np.ndarray:
     """A flat [time, qpos, qvel] vector of the expected size, finite, as floats."""
     state = np.asarray(state, dtype=float)

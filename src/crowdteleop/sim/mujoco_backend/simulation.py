@@ -27,6 +27,7 @@ from crowdteleop.sim.types import (
     RobotState,
     StepResult,
     TaskProgress,
+    flat_state,
     validate_state,
 )
 
@@ -157,8 +158,7 @@ class MujocoSimulation:
 
     # --- state -----------------------------------------------------------------------------
     def get_state(self) -> np.ndarray:
-        data = self._data
-        return np.concatenate(([data.time], data.qpos, data.qvel))
+        return flat_state(self._model, self._data)
 
     def set_state(self, state: np.ndarray) -> None:
         nq, nv = self._model.nq, self._model.nv

@@ -30,6 +30,7 @@ from crowdteleop.sim.types import (
     RobotState,
     StepResult,
     TaskProgress,
+    flat_state,
     validate_state,
 )
 
@@ -125,14 +126,8 @@ class RobosuiteSimulation:
 
     # --- state -----------------------------------------------------------------------------
     def get_state(self) -> np.ndarray:
-        """[time, qpos, qvel], robosuite's flattened layout, written straight from MjData:
-        the teleop server takes one every control step for the recording."""
-        data, nq = self._data, self._model.nq
-        state = np.empty(1 + nq + self._model.nv)
-        state[0] = data.time
-        state[1 : 1 + nq] = data.qpos
-        state[1 + nq :] = data.qvel
-        return state
+        """[time, qpos, qvel], robosuite's flattened layout."""
+        return flat_state(self._model, self._data)
 
     def set_state(self, state: np.ndarray) -> None:
         state = validate_state(state, 1 + self._model.nq + self._model.nv)
