@@ -82,3 +82,11 @@ def test_the_bot_needs_the_admin_token():
         timeout=60,
     )
     assert result.returncode == 2 and "--admin-token" in result.stdout
+
+
+def test_a_bad_option_is_named_in_the_error():
+    run = crowdteleop("teleop-server", "--task", "lift", "--token", "short", "--port", "0")
+    assert run.returncode == 2
+    output = " ".join((run.stdout + run.stderr).split())  # rich wraps long lines
+    assert "token: String should have at least 8 characters" in output
+    assert "Traceback" not in output

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from pydantic import ValidationError
@@ -55,8 +55,15 @@ def demo(
 
 def _explain(exc: Exception) -> str:
     if isinstance(exc, ValidationError):
-        return "; ".join(error["msg"].removeprefix("Value error, ") for error in exc.errors())
+        return "; ".join(_field_message(error) for error in exc.errors())
     return str(exc)
+
+
+def _field_message(error: Any) -> str:
+    """One pydantic error as "field: message", so a user knows which option to fix."""
+    message = error["msg"].removeprefix("Value error, ")
+    field = ".".join(str(part) for part in error.get("loc", ()))
+    return f"{field}: {message}" if field else message
 
 
 def _film_demo(
