@@ -88,18 +88,11 @@ def export_robomimic(
     tmp = output.with_name(f".{output.name}.{os.getpid()}.tmp")
     output.parent.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(dataset, tmp)
-    done = 0
+    tick = _frame_counter(progress, total)
     try:
         with ReplayChecker() as checker, h5py.File(tmp, "a") as file:
             for name in names:
                 demo = load_demo(dataset, name)
-
-                def tick() -> None:
-                    nonlocal done
-                    done += 1
-                    if progress is not None:
-                        progress(done, total)
-
                 obs = render_observations(checker, demo, cameras, width, height, tick)
                 group = file["data"][name]
                 columns = {f"{c}_image": a for c, a in obs.images.items()} | obs.low_dim
@@ -155,7 +148,7 @@ def export_lerobot(
     image_stats = {camera: _RunningImageStats() for camera in cameras}
     video_keys = [f"observation.images.{camera}" for camera in cameras]
     fps = float(load_demo(dataset, names[0]).metadata.get("control_hz") or 20.0)
-    done = 0
+    tick = _frame_counter(progress, total)
     with ReplayChecker() as checker, contextlib.ExitStack() as stack:
         writers = {
             key: stack.enter_context(
@@ -165,13 +158,6 @@ def export_lerobot(
         }
         for episode_index, name in enumerate(names):
             demo = load_demo(dataset, name)
-
-            def tick() -> None:
-                nonlocal done
-                done += 1
-                if progress is not None:
-                    progress(done, total)
-
             obs = render_observations(checker, demo, cameras, width, height, tick)
             task = get_task(str(demo.metadata.get("task", "lift"))).instruction
             task_index = tasks.setdefault(task, len(tasks))
@@ -379,3 +365,16 @@ def _info(
         "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
         "features": features,
     }
+
+
+def _frame_counter(progress: Progress | None, total: int) -> Callable[[], None]:
+    """A callback for each rendered frame that reports (frames done, total) to ``progress``."""
+    done = 0
+
+    def tick() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(done, total)
+
+    return tick

@@ -235,9 +235,7 @@ class EpisodeRecorder:
                     pending, steps = bytes(self._buffer), self._steps
                     self._buffer.clear()
                     entries, self._entries = self._entries, []
-                packed, notes = encode_steps(entries)  # outside _lock: appends go on
-                pending += packed
-                self._notes += notes
+                pending += self._pack(entries)  # outside _lock: appends go on meanwhile
                 if not pending:
                     continue
                 try:
@@ -253,15 +251,19 @@ class EpisodeRecorder:
         """Write and fsync the buffer with ``_io`` and ``_lock`` held."""
         self._last_flush = time.monotonic()
         if self._entries:
-            packed, notes = encode_steps(self._entries)
-            self._buffer += packed
-            self._notes += notes
+            self._buffer += self._pack(self._entries)
             self._entries = []
         if not self._buffer:
             return
         self._write_durably(bytes(self._buffer))
         self._buffer.clear()
         self._flushed_steps = self._steps
+
+    def _pack(self, entries: list[StepRecord]) -> bytes:
+        """Framed records of validated steps, with ``_io`` held (so notes count once each)."""
+        packed, notes = encode_steps(entries)
+        self._notes += notes
+        return packed
 
     def _write_durably(self, data: bytes) -> None:
         """Append ``data`` to the log and fsync it, with ``_io`` held."""
