@@ -1,6 +1,10 @@
-"""`kill -9` of a teleop server mid-episode loses at most the last flush interval."""
+"""A teleop server stopped mid-episode: `kill -9` loses at most the last flush interval;
+SIGTERM (what process managers send) stores the episode before the process exits."""
 
 from __future__ import annotations
+
+import asyncio
+import signal
 
 import numpy as np
 
@@ -53,3 +57,29 @@ def test_kill_9_mid_episode_keeps_every_step_up_to_the_last_flush(tmp_path):
     assert len(crashed) == 1
     episode = read_episode(crashed[0])
     assert episode.outcome == "crash" and episode.steps == partial.steps
+
+
+def test_sigterm_mid_episode_stores_the_episode_and_exits(tmp_path):
+    with teleop_server(tmp_path) as server:
+
+        async def drive_then_terminate():
+            client = TeleopClient(server.url, TOKEN, role="admin", admin_token=ADMIN_TOKEN)
+            Bot(client, seed=1)
+            await client.connect()
+            await client.wait_for(
+                lambda s: s.status is not None and s.status.elapsed_s >= 1.0, timeout=60
+            )
+            server.process.send_signal(signal.SIGTERM)
+            exit_code = await asyncio.to_thread(server.process.wait, 30)
+            await client.close()
+            return exit_code
+
+        exit_code = run(drive_then_terminate())
+        stored = sorted((server.record_dir / "other").glob("*.hdf5"))
+        logs = sorted((server.record_dir / "incoming").glob("*.wal"))
+
+    assert exit_code == 0
+    assert logs == [], "the episode was finalized, not left to crash recovery"
+    assert len(stored) == 1
+    episode = read_episode(stored[0])
+    assert episode.outcome == "disconnect" and episode.steps >= 20

@@ -7,6 +7,8 @@ import contextlib
 import hmac
 import logging
 import secrets
+import signal
+import threading
 import time
 from collections import Counter
 from typing import Any
@@ -495,7 +497,25 @@ async def serve(config: TeleopConfig, host: str = "127.0.0.1", port: int = 0) ->
     await site.start()
     bound = runner.addresses[0][1] if runner.addresses else port
     print(f"READY http://{host}:{bound}", flush=True)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    # SIGTERM (process managers) and SIGINT stop the server the same way: the running episode
+    # is finalized and stored. Installed explicitly because a process started in the
+    # background of a script inherits SIGINT ignored.
+    handled = _STOP_SIGNALS if _main_thread() else ()
+    for sig in handled:
+        loop.add_signal_handler(sig, stop.set)
     try:
-        await asyncio.Event().wait()
+        await stop.wait()
     finally:
+        for sig in handled:
+            loop.remove_signal_handler(sig)
         await runner.cleanup()
+
+
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _main_thread() -> bool:
+    """Signal handlers can only be installed from the main thread."""
+    return threading.current_thread() is threading.main_thread()
