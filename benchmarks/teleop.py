@@ -29,6 +29,8 @@ import psutil
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.ready import wait_ready
 
+from crowdteleop.coord.launcher import teleop_server_argv
+
 TOKEN = "bench-token-1"
 ADMIN = "bench-admin-1"
 ON_TIME = 0.95
@@ -110,16 +112,7 @@ def _start_server(directory: Path, index: int, task: str) -> subprocess.Popen:
     path = directory / f"teleop{index}.json"
     path.write_text(json.dumps(config))
     process = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "crowdteleop",
-            "teleop-server",
-            "--config",
-            str(path),
-            "--port",
-            "0",
-        ],
+        teleop_server_argv(path),
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,

@@ -8,7 +8,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -17,6 +16,7 @@ from typing import Any
 
 import aiohttp
 
+from crowdteleop.coord.launcher import teleop_server_argv
 from tests.ready import stop_gracefully, wait_ready
 
 TOKEN = "worker-token-123"
@@ -77,16 +77,7 @@ def teleop_server(tmp_path: Path, **overrides: Any) -> Iterator[ServerProcess]:
     log_path = tmp_path / "teleop.log"
     log_file = log_path.open("w")
     process = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "crowdteleop",
-            "teleop-server",
-            "--config",
-            str(config_path),
-            "--port",
-            "0",
-        ],
+        teleop_server_argv(config_path),
         stdout=subprocess.PIPE,
         stderr=log_file,
         text=True,

@@ -18,17 +18,23 @@ FLUSH_S = 0.2
 CONTROL_DT = 0.05
 
 
+async def bot_in_an_episode(url: str, elapsed_s: float) -> TeleopClient:
+    """A scripted worker driving the session, once its episode has run ``elapsed_s``."""
+    client = TeleopClient(url, TOKEN, role="admin", admin_token=ADMIN_TOKEN)
+    Bot(client, seed=1)
+    await client.connect()
+    await client.wait_for(
+        lambda s: s.status is not None and s.status.elapsed_s >= elapsed_s, timeout=60
+    )
+    return client
+
+
 def test_kill_9_mid_episode_keeps_every_step_up_to_the_last_flush(tmp_path):
     recording = {"flush_interval_s": FLUSH_S}
     with teleop_server(tmp_path, recording=recording) as server:
 
         async def drive_then_kill():
-            client = TeleopClient(server.url, TOKEN, role="admin", admin_token=ADMIN_TOKEN)
-            Bot(client, seed=1)
-            await client.connect()
-            await client.wait_for(
-                lambda s: s.status is not None and s.status.elapsed_s >= 1.5, timeout=60
-            )
+            client = await bot_in_an_episode(server.url, elapsed_s=1.5)
             seen_steps = round(client.state.status.elapsed_s / CONTROL_DT)
             server.kill9()
             await client.close()
@@ -63,12 +69,7 @@ def test_sigterm_mid_episode_stores_the_episode_and_exits(tmp_path):
     with teleop_server(tmp_path) as server:
 
         async def drive_then_terminate():
-            client = TeleopClient(server.url, TOKEN, role="admin", admin_token=ADMIN_TOKEN)
-            Bot(client, seed=1)
-            await client.connect()
-            await client.wait_for(
-                lambda s: s.status is not None and s.status.elapsed_s >= 1.0, timeout=60
-            )
+            client = await bot_in_an_episode(server.url, elapsed_s=1.0)
             server.process.send_signal(signal.SIGTERM)
             exit_code = await asyncio.to_thread(server.process.wait, 30)
             await client.close()

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pytest
 
+from crowdteleop.coord.launcher import teleop_server_argv
 from tests.teleop_process import teleop_config
 
 pytestmark = pytest.mark.slow
@@ -89,16 +90,7 @@ def test_vp8_adapts_to_a_500_kbps_link_without_a_standing_queue(tmp_path, shaped
             "netns",
             "exec",
             server_ns,
-            sys.executable,
-            "-m",
-            "crowdteleop",
-            "teleop-server",
-            "--config",
-            str(config_path),
-            "--host",
-            "10.77.0.1",
-            "--port",
-            "8765",
+            *teleop_server_argv(config_path, host="10.77.0.1", port=8765),
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,

@@ -20,6 +20,24 @@ from crowdteleop.teleop.config import TeleopConfig
 log = logging.getLogger(__name__)
 
 
+def teleop_server_argv(
+    config_path: Path, python: str = sys.executable, host: str | None = None, port: int = 0
+) -> list[str]:
+    """The command line of one teleop server process reading its config from a file."""
+    address = [] if host is None else ["--host", host]
+    return [
+        python,
+        "-m",
+        "crowdteleop",
+        "teleop-server",
+        "--config",
+        str(config_path),
+        *address,
+        "--port",
+        str(port),
+    ]
+
+
 class LaunchError(RuntimeError):
     """A teleop server did not come up; the message carries the end of its log."""
 
@@ -83,14 +101,7 @@ class LocalProcessLauncher:
         log_path = folder / "teleop.log"
         with log_path.open("ab") as log_file:
             process = await asyncio.create_subprocess_exec(
-                self.python,
-                "-m",
-                "crowdteleop",
-                "teleop-server",
-                "--config",
-                str(config_path),
-                "--port",
-                "0",
+                *teleop_server_argv(config_path, self.python),
                 stdin=asyncio.subprocess.DEVNULL,
                 stdout=asyncio.subprocess.PIPE,
                 stderr=log_file,
