@@ -78,7 +78,7 @@ class Bot:
         self._scene: int | None = None
         self.episodes_wanted: int | None = None
         self._last_pose: tuple | None = None
-        self._engage_seq: int | None = None
+        self._await_seq: int | None = None  # a pose the server must apply before we go on
         client.on_privileged = self._on_privileged
 
     def _on_privileged(self, message: PrivilegedState) -> None:
@@ -103,18 +103,21 @@ class Bot:
         if message.scene != self._scene:  # the server reset the scene: start over
             self._scene = message.scene
             self.operator.reset()
-            # Let go of the clutch for a step, so the server re-anchors on our next pose.
+            # Let go of the clutch until the server has applied that, so it re-anchors on our
+            # next press. (Poses of the last episode still in flight may have pressed it again
+            # after the reset; and the server applies only the latest pose of each step, so a
+            # release followed at once by a press could go unseen, leaving the server anchored
+            # elsewhere than we are.)
             origin = self.operator.style.device_origin
             self._last_pose = (origin, (0.0, 0.0, 0.0, 1.0), False, False)
-            self._engage_seq = None
-            self.client.send_pose(*self._last_pose)
+            self._await_seq = self.client.send_pose(*self._last_pose)
             return
         if self.operator.finished:
             return  # plan done without success: wait for the reset we asked for
-        if self._engage_seq is not None and message.command_seq < self._engage_seq:
-            # The server has not applied our clutch press yet. It anchors the device to the
-            # arm on the first engaged pose it applies, so keep sending that very pose: moving
-            # on now would offset the whole episode by a step of hand motion.
+        if self._await_seq is not None and message.command_seq < self._await_seq:
+            # The server has not applied our clutch release or press yet. It anchors the device
+            # to the arm on the first engaged pose it applies, so keep sending that very pose:
+            # moving on now would offset the whole episode by a step of hand motion.
             assert self._last_pose is not None
             self.client.send_pose(*self._last_pose)
             return
@@ -127,7 +130,7 @@ class Bot:
             command.gripper_closed,
         )
         seq = self.client.send_pose(*self._last_pose)
-        self._engage_seq = seq if engaging else None
+        self._await_seq = seq if engaging else None
         if self.operator.finished:
             self.client.request("reset")
 
