@@ -1,7 +1,7 @@
 """What one teleoperation session costs in CPU: the figure that decides how many workers one
 machine serves. Each (task, mode) runs in a fresh child process; see benchmarks/README.md.
 
-    .venv/bin/python benchmarks/session.py --tasks lift --seconds 20 --json out/bench-session.json
+    .venv/bin/python benchmarks/session.py --tasks lift --runs 3 --json out/session.json
 """
 
 from __future__ import annotations
@@ -14,14 +14,14 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from fractions import Fraction
 from pathlib import Path
 from typing import Annotated, Any
 
-import av
 import numpy as np
 import psutil
 import typer
+from aiortc import RTCRtpCodecParameters
+from aiortc.codecs import get_encoder
 from rich.console import Console
 from rich.table import Table
 
@@ -30,7 +30,13 @@ from crowdteleop.control import ControlConfig, DeviceCommand, Teleoperator
 from crowdteleop.control.scripted import ScriptedOperator
 from crowdteleop.control.scripted.episode import SUCCESS_HOLD_STEPS
 from crowdteleop.sim import SimConfig, get_task, make_simulation
-from crowdteleop.teleop.video import YuvConverter
+from crowdteleop.teleop.config import VideoConfig
+from crowdteleop.teleop.video import (
+    RTP_CLOCK_HZ,
+    TIME_BASE,
+    YuvConverter,
+    configure_encoder_bitrates,
+)
 from sim import _console, _parse_tasks, facts_table
 
 app = typer.Typer(add_completion=False)
@@ -66,16 +72,13 @@ class SessionResult:
         return 100.0 * (self.cpu_s - self.user_cpu_s) / self.wall_s
 
 
-def make_encoder(width: int, height: int, hz: int) -> Any:
-    """VP8 as a WebRTC server sends it: realtime, no lookahead, one thread, 500 kbps (aiortc's
-    starting bitrate). One thread because many sessions share the cores."""
-    codec = av.CodecContext.create("libvpx", "w")
-    codec.width, codec.height, codec.pix_fmt = width, height, "yuv420p"
-    codec.bit_rate = 500_000
-    codec.framerate, codec.time_base = Fraction(hz), Fraction(1, hz)
-    codec.thread_count = 1
-    codec.options = {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0"}
-    return codec
+def make_encoder() -> Any:
+    """The encoder the teleop server's video sender uses, at the server's default bitrates:
+    its options, its thread count and its RTP packetization, so `encode ms` is the server's."""
+    video = VideoConfig()
+    configure_encoder_bitrates(video)
+    mime = {"vp8": "video/VP8", "h264": "video/H264"}[video.codec]
+    return get_encoder(RTCRtpCodecParameters(mimeType=mime, clockRate=RTP_CLOCK_HZ))
 
 
 class Session:
@@ -93,7 +96,8 @@ class Session:
         self.operator = ScriptedOperator(self.sim, mapping=control.mapping, seed=0)
         self.busy, self.camera = busy, opts["camera"]
         self.size = (opts["width"], opts["height"])
-        self.codec = make_encoder(*self.size, round(1.0 / self.sim.control_dt))
+        self.encoder = make_encoder()
+        self.pts_step = round(self.sim.control_dt * RTP_CLOCK_HZ)
         self.yuv = YuvConverter()
         self.max_steps = round(get_task(task).time_limit_s / self.sim.control_dt)
         self.previous: np.ndarray | None = None
@@ -123,8 +127,8 @@ class Session:
         )
         if not unchanged:
             video = self.yuv.convert(frame)  # as the teleop server converts: one swscale context
-            video.pts = self.pts
-            self.codec.encode(video)  # packets discarded: sending is not measured here
+            video.pts, video.time_base = self.pts * self.pts_step, TIME_BASE
+            self.encoder.encode(video)  # RTP payloads discarded: sending is not measured here
             self.encoded += 1
         self.previous, self.pts = frame, self.pts + 1
         t4 = time.perf_counter()
@@ -209,29 +213,39 @@ def sessions_per_machine(busy_percent: float) -> int:
     return math.floor(len(os.sched_getaffinity(0)) * 100.0 / busy_percent)
 
 
-def results_table(results: list[SessionResult], opts: dict[str, Any]) -> Table:
+def median_run(runs: list[SessionResult]) -> SessionResult:
+    """The run whose CPU share is the median (the lower middle one for an even count)."""
+    ordered = sorted(runs, key=lambda r: r.cpu_percent)
+    return ordered[(len(ordered) - 1) // 2]
+
+
+def results_table(measured: dict[tuple[str, str], list[SessionResult]], opts: dict) -> Table:
+    runs = opts["runs"]
     table = Table(
         title="CPU per teleoperation session",
         caption=(
             f"{opts['seconds']:g} s per session at 20 Hz, {opts['controller']}, {opts['camera']} "
-            f"{opts['width']}x{opts['height']}, VP8 realtime 1 thread; "
-            "CPU = (process time - the scripted operator's) / wall; "
-            f"ms = median per tick; sessions = floor(usable cores x 100 / busy CPU %)"
+            f"{opts['width']}x{opts['height']}, VP8 as the teleop server encodes it (aiortc's "
+            "encoder, the server's bitrates); CPU = (process time - the scripted operator's) / "
+            f"wall, median of {runs} run(s), each its own process; other columns from the median "
+            "run, ms = median per tick; sessions = floor(usable cores x 100 / busy CPU %)"
         ),
     )
-    columns = ["task", "mode", "CPU\n% core", "target\n%", "loop\nHz", "over-\nruns"]
-    columns += [f"{name}\nms" for name in PHASES]
+    columns = ["task", "mode", "CPU\n% core", "runs\n% core", "target\n%", "loop\nHz"]
+    columns += ["over-\nruns", *(f"{name}\nms" for name in PHASES)]
     columns += ["encoded\n%", "episodes\n(success)", "RSS\nMiB", "sessions\nhere"]
     for name in columns:
         table.add_column(name, justify="left" if name in ("task", "mode") else "right")
-    for r in results:
-        share, target = r.cpu_percent, TARGET_PERCENT[r.mode]
+    for (task, mode), results in measured.items():
+        r = median_run(results)
+        share, target = r.cpu_percent, TARGET_PERCENT[mode]
         verdict = "[green]ok[/]" if share <= target else "[red]over[/]"
-        cells = [r.task, r.mode, f"{share:.1f}", f"<= {target:g} {verdict}"]
+        each = " ".join(f"{run.cpu_percent:.1f}" for run in results)
+        cells = [task, mode, f"{share:.1f}", each, f"<= {target:g} {verdict}"]
         cells += [f"{r.ticks / r.wall_s:.1f}", str(r.overruns)]
         cells += ["-" if r.phase_ms[p] is None else f"{r.phase_ms[p]:.2f}" for p in PHASES]
         cells += [f"{100.0 * r.encoded / r.ticks:.0f}"]
-        busy = r.mode == "busy"
+        busy = mode == "busy"
         cells += [f"{r.episodes} ({r.successes})" if busy else "-", f"{r.rss_mib:.0f}"]
         table.add_row(*cells, str(sessions_per_machine(share)) if busy else "-")
     return table
@@ -249,6 +263,7 @@ def main(
     json_path: Annotated[
         Path | None, typer.Option("--json", help="also write raw values here")
     ] = None,
+    runs: Annotated[int, typer.Option(min=1, help="runs per (task, mode); medians shown")] = 3,
     child: Annotated[str | None, typer.Option(hidden=True, help="TASK:MODE, internal")] = None,
 ) -> None:
     """Measure the CPU share of a busy and an idle session per task and print one table."""
@@ -264,24 +279,36 @@ def main(
     console = _console()
     facts = machine_facts()
     console.print(facts_table(facts))
-    results = []
+    measured: dict[tuple[str, str], list[SessionResult]] = {
+        (task, mode): [] for task in task_names for mode in MODES
+    }
+    # Round robin over the sessions, so a drift in the machine's speed reaches every task alike.
     with Console(stderr=True).status("") as status:
-        for task in task_names:
-            for mode in MODES:
-                status.update(f"{task}: {mode} session ({seconds:g} s, own process)")
+        for run in range(runs):
+            for (task, mode), results in measured.items():
+                status.update(f"run {run + 1}/{runs}, {task}: {mode} ({seconds:g} s, own process)")
                 results.append(run_in_subprocess(task, mode, opts))
-    console.print(results_table(results, opts))
-    worst = max(r.cpu_percent for r in results if r.mode == "busy")
+    console.print(results_table(measured, opts | {"runs": runs}))
+    medians = {key: median_run(results) for key, results in measured.items()}
+    worst = max(r.cpu_percent for (_, mode), r in medians.items() if mode == "busy")
     console.print(
         f"this machine holds {sessions_per_machine(worst)} busy sessions "
         f"(worst task, {worst:.1f}% of a core each; target >= 8 on 2 cores)"
     )
-    if any(r.overruns for r in results):
+    if any(r.overruns for results in measured.values() for r in results):
         console.print("[yellow]overruns: those sessions did not keep 20 Hz; their share is a floor")
     if json_path is not None:
         json_path.parent.mkdir(parents=True, exist_ok=True)
-        rows = [asdict(r) | {"cpu_percent": r.cpu_percent} for r in results]
-        report = {"machine": facts, "options": opts | {"tasks": task_names}, "results": rows}
+        rows = [
+            asdict(r) | {"cpu_percent": r.cpu_percent, "run": index}
+            for results in measured.values()
+            for index, r in enumerate(results)
+        ]
+        report = {"machine": facts, "options": opts | {"tasks": task_names, "runs": runs}}
+        report["results"] = rows
+        report["median_cpu_percent"] = {
+            f"{task}:{mode}": r.cpu_percent for (task, mode), r in medians.items()
+        }
         report["sessions_per_machine"] = sessions_per_machine(worst)
         json_path.write_text(json.dumps(report, indent=2))
         console.print(f"raw values written to {json_path}")
