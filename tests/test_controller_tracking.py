@@ -58,3 +58,59 @@ def test_released_clutch_holds_the_arm_still(lift_sim):
     for index in range(20):  # the phone wanders, the clutch is not held
         teleop.step(DeviceCommand(position=np.array([0.01 * index, 0.2, 0.0]), engaged=False))
     assert np.linalg.norm(lift_sim.robot_state().end_effector.position - start) < 0.005
+
+
+def test_the_ik_ignores_the_scenes_objects():
+    """The IK solves for the arm alone (objects' free joints dropped from its model) and gives
+    the set point mink finds on the whole scene, objects included."""
+    import mink
+    import mujoco
+    import qpsolvers
+
+    from crowdteleop.control.ik_velocity import IKVelocityController
+    from crowdteleop.sim.mjcf import kinematics_only
+    from crowdteleop.sim.types import Pose
+
+    sim = make_simulation(SimConfig(task="pick-place-can", action_mode="joint-velocity"))
+    try:
+        sim.reset(0)
+        kinematics, robot = sim.kinematics(), sim.robot_state()
+        ours = IKVelocityController(kinematics, kv=ControlConfig().kv)
+        scene = mujoco.MjModel.from_xml_string(kinematics_only(kinematics.mjcf_xml))
+        assert ours._model.nv < scene.nv, "the scene's objects are not in the IK's model"
+
+        target = Pose(
+            robot.end_effector.position + [0.05, -0.03, 0.04], robot.end_effector.quaternion
+        )
+        q = scene.qpos0.copy()
+        arm_qpos = scene.jnt_qposadr[[scene.joint(name).id for name in kinematics.arm_joints]]
+        q[arm_qpos] = robot.joint_positions
+        configuration = mink.Configuration(scene, q)
+        hand = mink.FrameTask(
+            kinematics.end_effector_site,
+            "site",
+            position_cost=1.0,
+            orientation_cost=0.3,
+            lm_damping=1e-2,
+        )
+        hand.set_target(
+            mink.SE3.from_rotation_and_translation(
+                mink.SO3(np.roll(target.quaternion, 1)), target.position
+            )
+        )
+        posture = mink.PostureTask(scene, cost=1e-3)
+        posture.set_target(q)
+        problem = mink.build_ik(
+            configuration,
+            [hand, posture],
+            1.0,
+            damping=1e-3,
+            limits=[mink.ConfigurationLimit(scene)],
+        )
+        velocity = qpsolvers.solve_problem(problem, solver="quadprog").x
+        arm_dofs = scene.jnt_dofadr[[scene.joint(name).id for name in kinematics.arm_joints]]
+        expected = robot.joint_positions + velocity[arm_dofs]
+
+        np.testing.assert_allclose(ours.joint_setpoint(target, robot), expected, atol=1e-9)
+    finally:
+        sim.close()

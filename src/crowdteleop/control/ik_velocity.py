@@ -1,7 +1,8 @@
 """The paper's controller: desired end-effector pose -> IK set point q* -> qdot = -kv (q - q*).
 
 Inverse kinematics is mink's differential IK (a QP with joint limits) on a private copy of the
-robot's MJCF model, iterated a few times from the current configuration each control step.
+scene's MJCF model that keeps only the robot's joints (objects' free joints go), iterated a few
+times from the current configuration each control step.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import mujoco
 import numpy as np
 import qpsolvers  # mink's QP front end
 
-from crowdteleop.sim.mjcf import kinematics_only
+from crowdteleop.sim.mjcf import kinematics_only, without_free_joints
 from crowdteleop.sim.types import KinematicModel, Pose, RobotState
 
 IK_ITERATIONS = 1  # one Gauss-Newton step per control step; the next step refines it
@@ -24,7 +25,8 @@ class IKVelocityController:
 
     def __init__(self, kinematics: KinematicModel, kv: float) -> None:
         self.kv = kv
-        self._model = mujoco.MjModel.from_xml_string(kinematics_only(kinematics.mjcf_xml))
+        xml = without_free_joints(kinematics_only(kinematics.mjcf_xml))
+        self._model = mujoco.MjModel.from_xml_string(xml)
         joint_ids = [self._model.joint(name).id for name in kinematics.arm_joints]
         self._arm_qpos = self._model.jnt_qposadr[joint_ids]
         self._arm_dofs = self._model.jnt_dofadr[joint_ids]
@@ -40,9 +42,7 @@ class IKVelocityController:
         # Keep the 7th joint's null space near the current posture instead of wandering.
         self._posture_task = mink.PostureTask(self._model, cost=1e-3)
         self._limits = [mink.ConfigurationLimit(self._model)]
-        # Only the arm may move in the IK: other joints (fingers, objects) get huge damping.
-        self._damping = np.full(self._model.nv, 1e3)
-        self._damping[self._arm_dofs] = 1e-3
+        # Only the arm moves in the IK: the fingers' velocities are dropped after each solve.
         self._other_dofs = np.setdiff1d(np.arange(self._model.nv), self._arm_dofs)
         self._site_id = self._model.site(kinematics.end_effector_site).id
         self.reset()

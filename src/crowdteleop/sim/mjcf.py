@@ -41,3 +41,18 @@ def kinematics_only(xml: str) -> str:
             if element.tag in ("texture", "material") or unused_mesh:
                 asset.remove(element)
     return with_arena(ET.tostring(root, encoding="unicode"), "1M")
+
+
+def without_free_joints(xml: str) -> str:
+    """The same model with its free joints removed: free bodies (a task's objects) stay fixed
+    where the MJCF puts them.
+
+    An arm's IK needs only the arm: every free object adds six unknowns to its QP (a pick-place
+    scene 24 of 33) that no task term couples to the arm, so dropping them changes no answer.
+    """
+    root = ET.fromstring(xml)
+    for body in root.iter("body"):
+        for joint in [*body.findall("freejoint"), *body.findall("joint")]:
+            if joint.tag == "freejoint" or joint.get("type") == "free":
+                body.remove(joint)
+    return ET.tostring(root, encoding="unicode")
