@@ -94,8 +94,18 @@ class RobosuiteReplayer:
         self._env.close()
 
     def _load(self, state: np.ndarray) -> None:
+        """Set a recorded state, and make robosuite's arm controller read it.
+
+        robosuite's controllers cache the arm's pose and refresh it only when their
+        ``new_update`` flag is set, which happens after they compute torques. A controller that
+        has not run since it was built (or since `update_initial_joints`) keeps the pose from
+        before the load for the first substep and takes it as the "achieved" pose the action's
+        delta adds to, so the first action after a load pulls the hand toward the old pose:
+        4.4 mm on the first step of an episode, with the arm at rest and a zero action.
+        """
         self._env.sim.set_state_from_flattened(state)
         self._env.sim.forward()
+        self._arm.update(force=True)
 
     def _step(self, action: np.ndarray) -> np.ndarray:
         # robosuite ramps its finger command 0.2 per step; start it where our (stateless) gripper
