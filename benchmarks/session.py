@@ -93,7 +93,8 @@ class Session:
         config = SimConfig(task=task, robot=opts["robot"], action_mode=control.action_mode)
         self.sim = make_simulation(config)
         self.teleop = Teleoperator(self.sim, control)
-        self.operator = ScriptedOperator(self.sim, mapping=control.mapping, seed=0)
+        first_seed = int(opts.get("first_seed", 0))
+        self.operator = ScriptedOperator(self.sim, mapping=control.mapping, seed=first_seed)
         self.busy, self.camera = busy, opts["camera"]
         self.size = (opts["width"], opts["height"])
         self.encoder = make_encoder()
@@ -101,7 +102,7 @@ class Session:
         self.yuv = YuvConverter()
         self.max_steps = round(get_task(task).time_limit_s / self.sim.control_dt)
         self.previous: np.ndarray | None = None
-        self.seed = self.pts = 0
+        self.seed, self.pts = first_seed, 0
         self.clear()
         self.new_episode()
 
@@ -173,11 +174,20 @@ def paced(tick: Callable[[], None], period: float, seconds: float) -> dict[str, 
     return {"wall_s": wall_s, "cpu_s": cpu_s, "ticks": ticks, "overruns": overruns}
 
 
+READY_MARKER = "BENCH-READY"
+
+
 def run_child(task: str, mode: str, opts: dict[str, Any]) -> SessionResult:
-    """The measured process: build one session, warm it up, run the paced loop."""
+    """The measured process: build one session, warm it up, run the paced loop.
+
+    With ``wait_for_go`` it says so on stdout once warm and starts the loop on a line from
+    stdin: `at_once.py` starts many sessions' measured windows together that way."""
     session = Session(task, mode == "busy", opts)
     for _ in range(WARMUP_TICKS):
         session.tick()
+    if opts.get("wait_for_go"):
+        print(READY_MARKER, flush=True)
+        sys.stdin.readline()
     session.clear()
     loop = paced(session.tick, session.sim.control_dt, opts["seconds"])
     rss_mib = psutil.Process().memory_info().rss / MIB
@@ -195,18 +205,29 @@ def run_child(task: str, mode: str, opts: dict[str, Any]) -> SessionResult:
     )
 
 
-def run_in_subprocess(task: str, mode: str, opts: dict[str, Any]) -> SessionResult:
-    """A fresh process per (task, mode): no shared caches or heap, memory released after."""
+def child_command(task: str, mode: str, opts: dict[str, Any], first_seed: int = 0) -> list[str]:
+    """The command line of one measured session process (`--child`)."""
     command = [sys.executable, str(Path(__file__).resolve()), "--child", f"{task}:{mode}"]
     for name in ("seconds", "controller", "camera", "width", "height", "robot"):
         command += [f"--{name}", str(opts[name])]
-    timeout = opts["seconds"] + 600
-    done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, check=False)
-    for line in reversed(done.stdout.splitlines()):
+    command += ["--first-seed", str(first_seed)]
+    return command + (["--wait-for-go"] if opts.get("wait_for_go") else [])
+
+
+def parse_child_output(label: str, stdout: str, stderr: str, returncode: int) -> SessionResult:
+    for line in reversed(stdout.splitlines()):
         if line.startswith(MARKER):
             return SessionResult(**json.loads(line.removeprefix(MARKER)))
-    tail = "\n".join((done.stderr or done.stdout).splitlines()[-15:])
-    raise RuntimeError(f"session {task}/{mode} failed (exit {done.returncode}):\n{tail}")
+    tail = "\n".join((stderr or stdout).splitlines()[-15:])
+    raise RuntimeError(f"session {label} failed (exit {returncode}):\n{tail}")
+
+
+def run_in_subprocess(task: str, mode: str, opts: dict[str, Any]) -> SessionResult:
+    """A fresh process per (task, mode): no shared caches or heap, memory released after."""
+    timeout = opts["seconds"] + 600
+    command = child_command(task, mode, opts)
+    done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, check=False)
+    return parse_child_output(f"{task}/{mode}", done.stdout, done.stderr, done.returncode)
 
 
 def sessions_per_machine(busy_percent: float) -> int:
@@ -265,6 +286,8 @@ def main(
     ] = None,
     runs: Annotated[int, typer.Option(min=1, help="runs per (task, mode); medians shown")] = 3,
     child: Annotated[str | None, typer.Option(hidden=True, help="TASK:MODE, internal")] = None,
+    first_seed: Annotated[int, typer.Option(hidden=True, help="child's first scene seed")] = 0,
+    wait_for_go: Annotated[bool, typer.Option(hidden=True, help="child waits on stdin")] = False,
 ) -> None:
     """Measure the CPU share of a busy and an idle session per task and print one table."""
     if controller not in ("ik-velocity", "osc"):
@@ -273,7 +296,8 @@ def main(
     opts |= {"width": width, "height": height, "robot": robot}
     if child is not None:
         task, mode = child.split(":")
-        print(MARKER + json.dumps(asdict(run_child(task, mode, opts))), flush=True)
+        child_opts = opts | {"first_seed": first_seed, "wait_for_go": wait_for_go}
+        print(MARKER + json.dumps(asdict(run_child(task, mode, child_opts))), flush=True)
         return
     task_names = _parse_tasks(tasks)
     console = _console()
