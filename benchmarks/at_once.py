@@ -15,7 +15,6 @@ import os
 import subprocess
 import time
 from dataclasses import asdict
-from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -26,9 +25,17 @@ from _measure import machine_facts, median
 from session import (
     DEFAULT_TASKS,
     READY_MARKER,
+    CameraOption,
+    ControllerOption,
+    JsonOption,
+    PixelsOption,
+    RobotOption,
+    SecondsOption,
     SessionResult,
+    TasksOption,
     child_command,
     parse_child_output,
+    session_options,
 )
 from sim import _console, _parse_tasks, facts_table
 
@@ -124,29 +131,24 @@ def results_table(rows: list[tuple[str, int, list[SessionResult]]], opts: dict[s
 
 @app.command()
 def main(
-    tasks: Annotated[str, typer.Option(help="comma-separated task names")] = DEFAULT_TASKS,
+    tasks: TasksOption = DEFAULT_TASKS,
     sessions: Annotated[str, typer.Option(help="comma-separated session counts")] = "8",
-    seconds: Annotated[float, typer.Option(min=1, help="measured seconds")] = 20.0,
-    controller: Annotated[str, typer.Option(help="ik-velocity or osc")] = "ik-velocity",
-    camera: Annotated[str, typer.Option(help="camera streamed to the worker")] = "frontview",
-    width: Annotated[int, typer.Option(min=16)] = 320,
-    height: Annotated[int, typer.Option(min=16)] = 240,
-    robot: Annotated[str, typer.Option(help="robosuite arm")] = "Sawyer",
-    json_path: Annotated[
-        Path | None, typer.Option("--json", help="also write raw values here")
-    ] = None,
+    seconds: SecondsOption = 20.0,
+    controller: ControllerOption = "ik-velocity",
+    camera: CameraOption = "frontview",
+    width: PixelsOption = 320,
+    height: PixelsOption = 240,
+    robot: RobotOption = "Sawyer",
+    json_path: JsonOption = None,
 ) -> None:
     """Run N busy sessions at once per task and count how many keep their 20 Hz."""
-    if controller not in ("ik-velocity", "osc"):
-        raise typer.BadParameter(f"controller is ik-velocity or osc, got {controller!r}")
+    opts = session_options(seconds, controller, camera, width, height, robot)
     try:
         counts = [int(text) for text in sessions.split(",")]
     except ValueError as exc:
         raise typer.BadParameter(f"sessions are whole numbers, got {sessions!r}") from exc
     if any(count < 1 for count in counts):
         raise typer.BadParameter(f"session counts are at least 1, got {sessions!r}")
-    opts = {"seconds": seconds, "controller": controller, "camera": camera}
-    opts |= {"width": width, "height": height, "robot": robot}
     task_names = _parse_tasks(tasks)
     console = _console()
     facts = machine_facts()

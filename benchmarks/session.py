@@ -272,28 +272,43 @@ def results_table(measured: dict[tuple[str, str], list[SessionResult]], opts: di
     return table
 
 
+# The command-line options a session takes, shared with `at_once.py`.
+TasksOption = Annotated[str, typer.Option(help="comma-separated task names")]
+SecondsOption = Annotated[float, typer.Option(min=1, help="measured seconds per session")]
+ControllerOption = Annotated[str, typer.Option(help="ik-velocity or osc")]
+CameraOption = Annotated[str, typer.Option(help="camera streamed to the worker")]
+PixelsOption = Annotated[int, typer.Option(min=16)]
+RobotOption = Annotated[str, typer.Option(help="robosuite arm")]
+JsonOption = Annotated[Path | None, typer.Option("--json", help="also write raw values here")]
+
+
+def session_options(
+    seconds: float, controller: str, camera: str, width: int, height: int, robot: str
+) -> dict[str, Any]:
+    """What every session child is told, checked."""
+    if controller not in ("ik-velocity", "osc"):
+        raise typer.BadParameter(f"controller is ik-velocity or osc, got {controller!r}")
+    opts = {"seconds": seconds, "controller": controller, "camera": camera}
+    return opts | {"width": width, "height": height, "robot": robot}
+
+
 @app.command()
 def main(
-    tasks: Annotated[str, typer.Option(help="comma-separated task names")] = DEFAULT_TASKS,
-    seconds: Annotated[float, typer.Option(min=1, help="measured seconds per session")] = 20.0,
-    controller: Annotated[str, typer.Option(help="ik-velocity or osc")] = "ik-velocity",
-    camera: Annotated[str, typer.Option(help="camera streamed to the worker")] = "frontview",
-    width: Annotated[int, typer.Option(min=16)] = 320,
-    height: Annotated[int, typer.Option(min=16)] = 240,
-    robot: Annotated[str, typer.Option(help="robosuite arm")] = "Sawyer",
-    json_path: Annotated[
-        Path | None, typer.Option("--json", help="also write raw values here")
-    ] = None,
+    tasks: TasksOption = DEFAULT_TASKS,
+    seconds: SecondsOption = 20.0,
+    controller: ControllerOption = "ik-velocity",
+    camera: CameraOption = "frontview",
+    width: PixelsOption = 320,
+    height: PixelsOption = 240,
+    robot: RobotOption = "Sawyer",
+    json_path: JsonOption = None,
     runs: Annotated[int, typer.Option(min=1, help="runs per (task, mode); medians shown")] = 3,
     child: Annotated[str | None, typer.Option(hidden=True, help="TASK:MODE, internal")] = None,
     first_seed: Annotated[int, typer.Option(hidden=True, help="child's first scene seed")] = 0,
     wait_for_go: Annotated[bool, typer.Option(hidden=True, help="child waits on stdin")] = False,
 ) -> None:
     """Measure the CPU share of a busy and an idle session per task and print one table."""
-    if controller not in ("ik-velocity", "osc"):
-        raise typer.BadParameter(f"controller is ik-velocity or osc, got {controller!r}")
-    opts = {"seconds": seconds, "controller": controller, "camera": camera}
-    opts |= {"width": width, "height": height, "robot": robot}
+    opts = session_options(seconds, controller, camera, width, height, robot)
     if child is not None:
         task, mode = child.split(":")
         child_opts = opts | {"first_seed": first_seed, "wait_for_go": wait_for_go}

@@ -21,8 +21,9 @@ from crowdteleop.sim import SimConfig, make_simulation
 # Bounds on the per-step end-effector difference. Our OSC is robosuite's law linearized once
 # per 50 ms control step and run inside MuJoCo; robosuite re-evaluates it every 2 ms. At the
 # scripted hand speeds (0.25 m/s, 12 mm per step) we measured ~0.35 mm typical and 1.5-2.2 mm
-# at the fastest moments (benchmarks/drift.py). A phone held in the hand jitters by several mm; a 1 mm median and a
-# 3 mm worst step keep the arm's response to an action the same to a user and a policy.
+# at the fastest moments (benchmarks/drift.py). A phone held in the hand jitters by several mm;
+# a 1 mm median and a 3 mm worst step keep the arm's response to an action the same to a user
+# and a policy.
 MEDIAN_STEP_DRIFT_M = 0.001
 MAX_STEP_DRIFT_M = 0.003
 
