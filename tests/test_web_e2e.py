@@ -1,5 +1,6 @@
 """A worker's whole visit, in real headless Chromium against a real coordinator, real teleop
-servers and real WebRTC: join, video, keyboard, phone, queue, completion, leaving."""
+servers and real WebRTC: join, video, keyboard, phone, queue, completion, a second tab,
+leaving."""
 
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ from tests.web_browser import (
 pytestmark = pytest.mark.slow
 
 JOIN = "/join?PROLIFIC_PID=worker-one&STUDY_ID=study-1&SESSION_ID=visit-1"
+SECOND_JOIN = "/join?PROLIFIC_PID=worker-two&STUDY_ID=study-1&SESSION_ID=visit-2"
 CAMPAIGN = {
     "name": "e2e",
     "title": "Teach a robot arm",
@@ -185,11 +187,7 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path):
                 await phone.screenshot(path=str(DOCS_SCREENSHOTS / "phone-page.png"))
 
                 # 4. With capacity 1, a second worker waits in line.
-                waiting = await _join(
-                    second_desktop,
-                    coord.url,
-                    "/join?PROLIFIC_PID=worker-two&STUDY_ID=study-1&SESSION_ID=visit-2",
-                )
+                waiting = await _join(second_desktop, coord.url, SECOND_JOIN)
                 results["queue_position"] = await wait_js(
                     waiting,
                     "window.crowdteleop.view && window.crowdteleop.view.queue_position",
@@ -235,7 +233,26 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path):
                 await wait_js(waiting, "window.crowdteleop.ready === true", 150)
                 results["second_admitted"] = True
 
-                # 7. Closing the tab frees the slot within 30 s.
+                # 7. The worker opens the study link again while the first tab, whose keyboard
+                #    drives, still looks alive to the server (a tab left open, or a reload
+                #    before the old connection timed out): the same robot, and the new tab's
+                #    keys drive it at once.
+                again = await _join(second_desktop, coord.url, SECOND_JOIN)
+                await wait_js(again, "window.crowdteleop.ready === true", 60)
+                results["same_session"] = await again.evaluate(
+                    "crowdteleop.view.session_id"
+                ) == await waiting.evaluate("crowdteleop.view.session_id")
+                await wait_js(again, "crowdteleop.connection.state.status !== null", 30)
+                before = await _hand(again)
+                await again.keyboard.down("r")
+                await asyncio.sleep(1.5)
+                await again.keyboard.up("r")
+                await asyncio.sleep(1.5)
+                results["again_moved"] = await _hand(again) - before
+                results["again_banner"] = await again.inner_text("body")
+
+                # 8. Closing the tabs frees the slot within 30 s.
+                await again.close()
                 await waiting.close()
                 started = time.monotonic()
                 while _overview(coord.url)["sessions"] and time.monotonic() - started < 30:
@@ -256,4 +273,7 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path):
     assert len(results["completion_code"]) >= 6
     assert results["phone_haptics"] > 0, "the phone buzzed when the gripper touched the cube"
     assert results["second_admitted"]
+    assert results["same_session"], "opening the link again finds the worker's robot"
+    assert results["again_moved"][2] > 0.05, "the new tab's keys drive the arm"
+    assert "does not drive the arm" not in results["again_banner"]
     assert results["live_after_close"] == 0 and results["freed_after_s"] < 30

@@ -120,8 +120,13 @@ function controlLoop() {
     const busy = page.device.active === undefined || page.device.active;
     if (busy || key !== page.lastCommand) {
       const driver = page.connection.state.status && page.connection.state.status.controlling_device;
-      if (busy && driver && driver !== page.device.kind && now - (page.tookControlAt || 0) > 1000) {
-        page.connection.takeControl();  // pressing keys is asking to drive
+      // Another device drives, or the same kind on another connection (a tab left open, or
+      // one reloaded before the server noticed the old one gone): the server refused our last
+      // command. Pressing keys is asking to drive.
+      const refused = (page.refusedAt || 0) > (page.tookControlAt || 0);
+      const otherDevice = driver && driver !== page.device.kind;
+      if (busy && (otherDevice || refused) && now - (page.tookControlAt || 0) > 1000) {
+        page.connection.takeControl();
         page.tookControlAt = now;
       }
       page.connection.sendPose(command.position, command.quaternion, command.engaged, command.gripper);
@@ -141,7 +146,13 @@ function showStatus() {
     if (detail.outcome === "success") banner("info", "Demonstration saved. Thank you!");
     heartbeat();
   });
-  c.addEventListener("error", ({ detail }) => banner("error", detail.message));
+  c.addEventListener("error", ({ detail }) => {
+    if (detail.code === "not_in_control") {  // not the worker's fault: their keys take over
+      page.refusedAt = performance.now();
+      return;
+    }
+    banner("error", detail.message);
+  });
   c.addEventListener("connection", ({ detail }) => {
     $("connection").textContent = detail.state;
     if (["failed", "disconnected"].includes(detail.state) && !page.ended) {
