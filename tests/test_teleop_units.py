@@ -6,9 +6,11 @@ import asyncio
 import json
 import time
 
+import numpy as np
 import pytest
 
 from crowdteleop.client.latency import FrameMatcher, LatencyTracker
+from crowdteleop.control import ControlConfig, Teleoperator
 from crowdteleop.teleop.clock import FixedRateClock
 from crowdteleop.teleop.commands import CommandBoard, NotInControlError
 from crowdteleop.teleop.config import TeleopConfig, VideoConfig
@@ -99,10 +101,11 @@ def test_the_guard_counts_refusals_and_limits_floods():
     assert guard.errors["rate_limited"] == 7
 
 
-def _pose(seq: int, device: str = "phone", engaged: bool = True) -> PoseCommand:
-    return PoseCommand.model_validate_json(
-        json.dumps({**POSE, "seq": seq, "device": device, "engaged": engaged})
-    )
+def _pose(
+    seq: int, device: str = "phone", engaged: bool = True, position: tuple = (0.0, 0.1, 0.0)
+) -> PoseCommand:
+    message = {**POSE, "seq": seq, "device": device, "engaged": engaged}
+    return PoseCommand.model_validate_json(json.dumps(message | {"position": list(position)}))
 
 
 def test_latest_pose_wins_and_stale_ones_are_dropped():
@@ -130,6 +133,27 @@ def test_only_the_controlling_device_drives_until_it_hands_over():
     assert not board.command().engaged, "a new device starts with the clutch released"
     assert board.apply_pose("phone", _pose(1, device="phone"))
     assert board.release("phone") and board.controller is None
+
+
+def test_a_device_taking_over_mid_press_anchors_where_the_hand_is(lift_sim):
+    """Control passes between two engaged devices (a second tab takes over a first whose clutch
+    is held) between two control steps: the arm stays where it is, it does not jump to where the
+    old device's anchor would put the new device's pose."""
+    board, teleop = CommandBoard(), Teleoperator(lift_sim, ControlConfig())
+    teleop.reset(0)
+    board.apply_pose("tab-1", _pose(1, device="keyboard", position=(0.0, 0.0, 0.0)))
+    teleop.step(board.command())
+    board.apply_pose("tab-1", _pose(2, device="keyboard", position=(0.1, 0.0, 0.0)))
+    for _ in range(30):  # the hand follows the first tab 10 cm
+        teleop.step(board.command())
+    hand = lift_sim.robot_state().end_effector.position
+
+    board.take_control("tab-2", "keyboard")  # both before the next control step
+    board.apply_pose("tab-2", _pose(1, device="keyboard", position=(0.0, 0.0, 0.0)))
+    for _ in range(30):
+        teleop.step(board.command())
+
+    assert np.linalg.norm(lift_sim.robot_state().end_effector.position - hand) < 0.01
 
 
 def test_the_clock_keeps_its_rate_and_skips_rather_than_bursts():

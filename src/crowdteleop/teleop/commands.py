@@ -40,6 +40,8 @@ class CommandBoard:
     last_seq: int = -1
     last_client_time: float = 0.0
     has_pose: bool = False
+    # Set when control changes hands; the next `command` shows the clutch released once.
+    release_pending: bool = False
 
     def take_control(self, peer_id: str, device: DeviceKind) -> bool:
         """Make (peer, device) the controller; returns whether anything changed."""
@@ -50,6 +52,10 @@ class CommandBoard:
         self.engaged = False  # a new device starts with the clutch released
         self.last_seq = -1
         self.has_pose = False
+        # ... and the control loop must see that release: the new device's first engaged pose
+        # may arrive before the next step, and a mapper that never saw the clutch let go would
+        # keep the old device's anchor and pull the hand to where the old anchor puts it.
+        self.release_pending = True
         return True
 
     def release(self, peer_id: str) -> bool:
@@ -105,10 +111,13 @@ class CommandBoard:
         return True
 
     def command(self) -> DeviceCommand:
+        """The command for this control step (call once per step)."""
+        engaged = self.engaged and not self.release_pending
+        self.release_pending = False
         return DeviceCommand(
             position=self.position,
             quaternion=self.quaternion,
-            engaged=self.engaged,
+            engaged=engaged,
             gripper_closed=self.gripper_closed,
             seq=max(self.last_seq, 0),
             timestamp=self.last_client_time,
