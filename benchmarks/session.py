@@ -77,8 +77,7 @@ def make_encoder() -> Any:
     its options, its thread count and its RTP packetization, so `encode ms` is the server's."""
     video = VideoConfig()
     configure_encoder_bitrates(video)
-    mime = {"vp8": "video/VP8", "h264": "video/H264"}[video.codec]
-    return get_encoder(RTCRtpCodecParameters(mimeType=mime, clockRate=RTP_CLOCK_HZ))
+    return get_encoder(RTCRtpCodecParameters(mimeType=video.mime_type, clockRate=RTP_CLOCK_HZ))
 
 
 class Session:

@@ -46,6 +46,11 @@ class VideoConfig(BaseModel):
         2.0, gt=0, le=30, description="frames per second sent while nothing in view moves"
     )
 
+    @property
+    def mime_type(self) -> str:
+        """The codec's RTP name, as WebRTC capabilities and aiortc's encoders know it."""
+        return "video/VP8" if self.codec == "vp8" else "video/H264"
+
     @model_validator(mode="before")
     @classmethod
     def _codec_defaults(cls, data: object) -> object:

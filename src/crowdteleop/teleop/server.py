@@ -194,9 +194,8 @@ class TeleopServer:
         return pc.localDescription, peer.peer_id
 
     def _prefer_codec(self, transceiver: Any) -> None:
-        mime = "video/VP8" if self.config.video.codec == "vp8" else "video/H264"
         codecs = RTCRtpSender.getCapabilities("video").codecs
-        preferred = [c for c in codecs if c.mimeType == mime]
+        preferred = [c for c in codecs if c.mimeType == self.config.video.mime_type]
         rtx = [c for c in codecs if c.mimeType == "video/rtx"]
         transceiver.setCodecPreferences(preferred + rtx)
 
