@@ -104,8 +104,7 @@ class RobosuiteReplayer:
         4.4 mm on the first step of an episode, with the arm at rest and a zero action.
         """
         self._env.sim.set_state_from_flattened(state)
-        self._env.sim.forward()
-        self._arm.update(force=True)
+        self._arm.update(force=True)  # runs the forward pass, then reads the arm
 
     def _step(self, action: np.ndarray) -> np.ndarray:
         # robosuite ramps its finger command 0.2 per step; start it where our (stateless) gripper
