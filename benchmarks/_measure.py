@@ -29,9 +29,13 @@ import psutil
 from scipy.spatial.transform import Rotation
 
 # crowdteleop's import chooses MUJOCO_GL; it comes before anything that imports mujoco.
-from crowdteleop.control import ControlConfig, DeviceCommand, Teleoperator
-from crowdteleop.sim import SimConfig, Simulation, TaskSpec, get_task, make_simulation
+from crowdteleop.control.command import DeviceCommand
+from crowdteleop.control.config import ControlConfig
+from crowdteleop.control.teleoperator import Teleoperator
+from crowdteleop.sim import SimConfig, make_simulation
+from crowdteleop.sim.interface import Simulation
 from crowdteleop.sim.types import ActionSpec
+from crowdteleop.tasks import TaskSpec, get_task
 
 MEMORY_MARKER = "BENCH-MEMORY "
 MIB = 1024.0 * 1024.0
@@ -169,7 +173,7 @@ def device_commands(dt: float, n: int) -> list[DeviceCommand]:
                 engaged=True,
                 gripper_closed=gripper_command(t) > 0,
                 seq=k,
-                timestamp=t,
+                client_time_ms=1000.0 * t,
             )
         )
     return commands

@@ -23,10 +23,10 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from crowdteleop.data.dataset import build_dataset
-from crowdteleop.data.s3 import S3Config, S3Storage
-from crowdteleop.data.scripted import scripted_rig
-from crowdteleop.data.wal_codec import encode_steps
+from crowdteleop.dataset.build import build_dataset
+from crowdteleop.dataset.scripted import scripted_rig
+from crowdteleop.recording.s3 import S3Config, S3Storage
+from crowdteleop.recording.wal_codec import encode_steps
 
 app = typer.Typer(add_completion=False)
 
@@ -42,7 +42,7 @@ def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
     only) and the append, on the control thread; ``raw_command`` on the event loop's thread.
     """
     from crowdteleop.control.scripted import ScriptedOperator, run_episode
-    from crowdteleop.data.versions import runtime_versions
+    from crowdteleop.recording.versions import runtime_versions
     from crowdteleop.teleop.commands import CommandBoard
     from crowdteleop.teleop.episode import EpisodeTracker, step_record
     from crowdteleop.teleop.protocol import PoseCommand
@@ -71,7 +71,7 @@ def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
                     "bench",
                     PoseCommand(
                         seq=board.last_seq + 1,
-                        t=1000 * time.time(),
+                        client_time_ms=1000 * time.time(),
                         device="phone",
                         position=tuple(command.position.tolist()),
                         quaternion=tuple(command.quaternion.tolist()),

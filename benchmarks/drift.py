@@ -11,7 +11,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from crowdteleop.analysis.robosuite_replay import RobosuiteReplayer, record_scripted_osc_episode
+from crowdteleop.dataset.robosuite_replay import RobosuiteReplayer, record_scripted_osc_episode
 
 app = typer.Typer(add_completion=False)
 

@@ -24,7 +24,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from crowdteleop.data import EpisodeRecorder, StepRecord, read_episode, read_partial
+from crowdteleop.recording.episode_file import StepRecord, read_episode
+from crowdteleop.recording.wal import EpisodeRecorder, read_partial
 
 app = typer.Typer(add_completion=False)
 STATE_SIZE = 71
@@ -44,7 +45,7 @@ def make_steps(count: int) -> list[StepRecord]:
             action=rng.uniform(-1, 1, ACTION_SIZE),
             command={
                 "seq": index,
-                "t": 1.7e9 + index / CONTROL_HZ,
+                "client_time_ms": 1.7e9 + index / CONTROL_HZ,
                 "position": rng.standard_normal(3).tolist(),
                 "quaternion": [0.0, 0.0, 0.0, 1.0],
                 "engaged": True,

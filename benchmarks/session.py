@@ -26,10 +26,13 @@ from rich.console import Console
 from rich.table import Table
 
 from _measure import MIB, machine_facts, median
-from crowdteleop.control import ControlConfig, DeviceCommand, Teleoperator
+from crowdteleop.control.command import DeviceCommand
+from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.scripted import ScriptedOperator
 from crowdteleop.control.scripted.episode import SUCCESS_HOLD_STEPS
-from crowdteleop.sim import SimConfig, get_task, make_simulation
+from crowdteleop.control.teleoperator import Teleoperator
+from crowdteleop.sim import SimConfig, make_simulation
+from crowdteleop.tasks import get_task
 from crowdteleop.teleop.config import VideoConfig
 from crowdteleop.teleop.video import (
     RTP_CLOCK_HZ,

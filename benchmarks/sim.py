@@ -31,7 +31,7 @@ from _measure import (
     release_memory,
     size_key,
 )
-from crowdteleop.sim.registry import TASKS
+from crowdteleop.tasks import TASKS
 
 app = typer.Typer(add_completion=False)
 TABLE_WIDTH = 160  # when not writing to a terminal, don't squeeze the table into 80 columns

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from crowdteleop.data.recording import EpisodeRecorder, StepRecord
+from crowdteleop.recording.episode_file import StepRecord
+from crowdteleop.recording.wal import EpisodeRecorder
 
 STATE_SIZE = 71
 ACTION_SIZE = 8
@@ -31,7 +32,12 @@ def make_step(index: int) -> StepRecord:
         index=index,
         state=state,
         action=rng.uniform(-1, 1, ACTION_SIZE),
-        command={"seq": index, "t": 1000.0 + index / 20, "engaged": True, "device": "phone"},
+        command={
+            "seq": index,
+            "client_time_ms": 1000.0 + index / 20,
+            "engaged": True,
+            "device": "phone",
+        },
         server_time=2000.0 + index / 20,
         step_duration_s=float(rng.uniform(0.001, 0.01)),
         reward=float(index % 2),

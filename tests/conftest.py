@@ -7,7 +7,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from crowdteleop.sim import SimConfig, Simulation, make_simulation
+from crowdteleop.sim import SimConfig, make_simulation
+from crowdteleop.sim.interface import Simulation
 
 
 @pytest.fixture

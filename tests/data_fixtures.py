@@ -16,7 +16,7 @@ from pathlib import Path
 
 import boto3
 
-from crowdteleop.data.s3 import S3Config
+from crowdteleop.recording.s3 import S3Config
 
 BUCKET = "demonstrations"
 KEYS = {"access_key_id": "testing-key", "secret_access_key": "testing-secret"}
@@ -132,7 +132,7 @@ def _aws(keys: dict[str, str]) -> dict[str, str]:
 def record_lift_episodes(directory: Path, count: int, finalize: bool = True, rig=None) -> list:
     """``count`` scripted lift episodes (seeds 0..count-1), people alternating; ``rig`` (from
     ``scripted_rig``) saves building the simulation again."""
-    from crowdteleop.data.scripted import record_scripted_episode, scripted_rig
+    from crowdteleop.dataset.scripted import record_scripted_episode, scripted_rig
 
     with contextlib.ExitStack() as stack:
         rig = rig or stack.enter_context(scripted_rig("lift"))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from crowdteleop.sim import Simulation
+from crowdteleop.sim.interface import Simulation
 
 
 def arm_motion(sim: Simulation, step_index: int) -> np.ndarray:

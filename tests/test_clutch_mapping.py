@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from crowdteleop.control import ClutchMapper, DeviceCommand, MappingConfig
+from crowdteleop.control.command import DeviceCommand
+from crowdteleop.control.config import MappingConfig
+from crowdteleop.control.mapping import ClutchMapper
 from crowdteleop.sim.types import Pose
 
 HAND = Pose(np.array([0.5, 0.0, 1.0]), Rotation.from_euler("x", 180, degrees=True).as_quat())

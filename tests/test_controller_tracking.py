@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from crowdteleop.control import ControlConfig, DeviceCommand, Teleoperator
+from crowdteleop.control.command import DeviceCommand
+from crowdteleop.control.config import ControlConfig
+from crowdteleop.control.teleoperator import Teleoperator
 from crowdteleop.sim import SimConfig, make_simulation
 
 DIRECTIONS = [

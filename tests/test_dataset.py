@@ -14,8 +14,8 @@ import pytest
 from typer.testing import CliRunner
 
 from crowdteleop.cli import app
-from crowdteleop.data.dataset import DatasetError, build_dataset, dataset_demos
-from crowdteleop.data.scripted import record_scripted_episode, scripted_rig
+from crowdteleop.dataset.build import DatasetError, build_dataset, dataset_demos
+from crowdteleop.dataset.scripted import record_scripted_episode, scripted_rig
 from tests.data_fixtures import record_lift_episodes
 
 runner = CliRunner()
@@ -116,7 +116,7 @@ def test_robomimic_sequence_dataset_loads_it(dataset):
 
 
 def test_robosuite_playback_replays_its_states(dataset):
-    from crowdteleop.analysis.robosuite_replay import play_states_in_robosuite
+    from crowdteleop.dataset.robosuite_replay import play_states_in_robosuite
 
     playback = play_states_in_robosuite(str(dataset), "demo_3")
     assert playback.max_state_error == 0.0
@@ -342,7 +342,7 @@ def test_export_rerenders_images_for_robomimic_and_lerobot(dataset, tmp_path):
 @pytest.mark.slow
 def test_replay_measures_action_replay_drift_in_plain_robosuite(tmp_path):
     """The playback complaint, measured: an OSC demo's actions stepped in plain robosuite."""
-    from crowdteleop.data.replay import ReplayChecker, load_demo
+    from crowdteleop.dataset.replay import ReplayChecker, load_demo
 
     with scripted_rig("lift", controller="osc") as rig:
         episode = record_scripted_episode(rig, tmp_path, "osc-demo", 5, {"interface": "phone"})

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from crowdteleop.control import ControlConfig, DeviceCommand, Teleoperator
+from crowdteleop.control.command import DeviceCommand
+from crowdteleop.control.config import ControlConfig
+from crowdteleop.control.teleoperator import Teleoperator
 from crowdteleop.errors import (
     ConfigError,
     InvalidActionError,

@@ -7,7 +7,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from crowdteleop.control import ControlConfig, DeviceCommand, Teleoperator
+from crowdteleop.control.command import DeviceCommand
+from crowdteleop.control.config import ControlConfig
+from crowdteleop.control.teleoperator import Teleoperator
 from crowdteleop.sim import SimConfig, make_simulation
 
 

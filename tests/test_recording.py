@@ -23,25 +23,23 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from crowdteleop.data import (
+from crowdteleop.errors import InvalidActionError, InvalidStateError
+from crowdteleop.recording.episode_file import (
     CorruptEpisodeError,
-    EpisodeRecorder,
     InvalidRecordError,
     RecordingError,
     StepRecord,
     read_episode,
-    read_partial,
-    recover_orphans,
 )
-from crowdteleop.data.recording import OUTCOMES
-from crowdteleop.data.storage import (
+from crowdteleop.recording.storage import (
     EpisodeStorage,
     InvalidKeyError,
     KeyExistsError,
     LocalDirectoryStorage,
     ObjectNotFoundError,
 )
-from crowdteleop.errors import InvalidActionError, InvalidStateError
+from crowdteleop.recording.wal import EpisodeRecorder, read_partial, recover_orphans
+from crowdteleop.vocab import OUTCOMES
 from tests import _recording_child as child
 
 METADATA = {
@@ -103,7 +101,7 @@ def test_round_trip_is_bit_exact_and_robomimic_shaped(tmp_path):
         assert json.loads(file["data"].attrs["env_args"])["type"] == 1
         assert file.attrs["outcome"] == "success"
         assert demo["commands/seq"][()].tolist() == list(range(30))
-        assert demo["commands/client_time"][3] == 1000.0 + 3 / 20
+        assert demo["commands/client_time_ms"][3] == 1000.0 + 3 / 20
         assert np.isnan(demo["commands/position"][()]).all()  # the child's commands lack it
         assert json.loads(demo["contacts"].asstr()[0])[0]["object"] == "cube"
 
@@ -159,7 +157,7 @@ def test_bad_steps_raise_and_leave_the_recording_intact(tmp_path):
 def test_a_command_or_contacts_json_refuses_are_recorded_as_a_counted_note(tmp_path):
     recorder = record(tmp_path, 3, flush_interval_s=0.0)
     good = child.make_step(3)
-    recorder.append(dataclasses.replace(good, command={"t": float("nan")}))
+    recorder.append(dataclasses.replace(good, command={"client_time_ms": float("nan")}))
     recorder.append(dataclasses.replace(child.make_step(4), contacts=[{"object": object()}]))
 
     assert (recorder.steps, recorder.flushed_steps, recorder.notes) == (5, 5, 2)
@@ -355,7 +353,7 @@ def device_commands(draw) -> dict:
     """Commands shaped as the teleop server's (packed in the log) or nearly so (JSON)."""
     values = {
         "seq": draw(st.integers(-(2**64), 2**64) | st.booleans()),
-        "t": draw(FLOATS | st.integers(0, 10)),
+        "client_time_ms": draw(FLOATS | st.integers(0, 10)),
         "device": draw(DEVICES),
         "position": draw(st.lists(FLOATS, min_size=3, max_size=3) | st.lists(ALMOST_FLOAT)),
         "quaternion": draw(st.lists(FLOATS, min_size=4, max_size=4) | st.lists(ALMOST_FLOAT)),
@@ -430,7 +428,7 @@ def session_step(index: int, **changes) -> StepRecord:
     """A step as ``TeleopSession._step`` records it (``CommandBoard.raw_command``)."""
     command = {
         "seq": 40 + index,
-        "t": 1.7e12 + index * 50.5,
+        "client_time_ms": 1.7e12 + index * 50.5,
         "device": "phone",
         "position": [0.1 * index, -0.0, 5e-324],
         "quaternion": [0.0, 0.0, 0.2, 0.98],
@@ -483,7 +481,7 @@ def test_session_steps_are_packed_without_json_and_come_back_exactly(tmp_path):
 def test_commands_that_do_not_pack_are_kept_as_json_or_as_a_note(tmp_path):
     recorder = EpisodeRecorder(tmp_path, "odd", {"k": 1}, flush_interval_s=0.0)
     odd = [
-        {"t": 5},  # an int where a float packs
+        {"client_time_ms": 5},  # an int where a float packs
         {"position": (0.0, 1.0, 2.0)},  # a tuple
         {"position": [np.float64(0.5), 1.0, 2.0]},
         {"seq": 2**63},
@@ -502,7 +500,7 @@ def test_commands_that_do_not_pack_are_kept_as_json_or_as_a_note(tmp_path):
     assert [json.dumps(c) for c in partial.commands] == [json.dumps(c) for c in expected]
     refused_commands = (
         {**session_step(0).command, "position": [0.0, float("nan"), 0.0]},
-        {**session_step(0).command, "t": float("inf")},
+        {**session_step(0).command, "client_time_ms": float("inf")},
         {**session_step(0).command, "gripper": float("-inf")},
     )
     for command in refused_commands:

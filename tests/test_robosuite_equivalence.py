@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from crowdteleop.analysis.robosuite_replay import RobosuiteReplayer, record_scripted_osc_episode
+from crowdteleop.dataset.robosuite_replay import RobosuiteReplayer, record_scripted_osc_episode
 from crowdteleop.sim import SimConfig, make_simulation
 
 # Bounds on the per-step end-effector difference. Our OSC is robosuite's law linearized once

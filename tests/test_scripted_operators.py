@@ -6,8 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from crowdteleop.control import ControlConfig, Teleoperator
+from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.scripted import OperatorStyle, ScriptedOperator, run_episode
+from crowdteleop.control.teleoperator import Teleoperator
 from crowdteleop.errors import ConfigError
 from crowdteleop.sim import SimConfig, make_simulation
 

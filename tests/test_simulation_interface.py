@@ -6,7 +6,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from crowdteleop.sim import TASKS, SimConfig, Simulation, make_simulation
+from crowdteleop.sim import SimConfig, make_simulation
+from crowdteleop.sim.interface import Simulation
+from crowdteleop.tasks import TASKS
 from tests.helpers import arm_motion
 
 ALL_TASKS = list(TASKS)

@@ -10,11 +10,11 @@ import pytest
 from typer.testing import CliRunner
 
 from crowdteleop.cli import app
-from crowdteleop.data import LocalDirectoryStorage, read_episode
-from crowdteleop.data.s3 import S3Storage, StorageAccessError, StorageUnavailableError
-from crowdteleop.data.spool import SpooledStorage
-from crowdteleop.data.storage import KeyExistsError, file_sha256
-from crowdteleop.data.stores import StorageConfig
+from crowdteleop.recording.episode_file import read_episode
+from crowdteleop.recording.s3 import S3Storage, StorageAccessError, StorageUnavailableError
+from crowdteleop.recording.spool import SpooledStorage
+from crowdteleop.recording.storage import KeyExistsError, LocalDirectoryStorage, file_sha256
+from crowdteleop.recording.stores import StorageConfig
 from crowdteleop.teleop.config import RecordingConfig
 from crowdteleop.teleop.episode import FinishedEpisode, store_episode
 from tests.data_fixtures import (
@@ -39,7 +39,7 @@ def _sha(data: bytes) -> str:
 
 @pytest.fixture(scope="module")
 def rig():
-    from crowdteleop.data.scripted import scripted_rig
+    from crowdteleop.dataset.scripted import scripted_rig
 
     with scripted_rig("lift") as built:
         yield built
@@ -212,6 +212,6 @@ def test_missing_bucket_and_wrong_credentials_are_clear_and_touch_nothing(tmp_pa
 
 
 def _s3_config(url, keys, bucket=BUCKET):
-    from crowdteleop.data.s3 import S3Config
+    from crowdteleop.recording.s3 import S3Config
 
     return S3Config(bucket=bucket, endpoint_url=url, attempts=2, backoff_base_s=0.05, **keys)

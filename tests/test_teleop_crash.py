@@ -10,7 +10,8 @@ import numpy as np
 
 from crowdteleop.client.bot import Bot
 from crowdteleop.client.connection import TeleopClient
-from crowdteleop.data.recording import read_episode, read_partial
+from crowdteleop.recording.episode_file import read_episode
+from crowdteleop.recording.wal import read_partial
 from crowdteleop.sim import SimConfig, make_simulation
 from tests.teleop_process import ADMIN_TOKEN, TOKEN, run, teleop_server
 

@@ -9,7 +9,7 @@ import pytest
 
 from crowdteleop.client.bot import Bot
 from crowdteleop.client.connection import OfferRefusedError, TeleopClient
-from crowdteleop.data.recording import read_episode
+from crowdteleop.recording.episode_file import read_episode
 from crowdteleop.sim import SimConfig, make_simulation
 from tests.teleop_process import ADMIN_TOKEN, TOKEN, run, teleop_server
 

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from crowdteleop.client.latency import FrameMatcher, LatencyTracker
-from crowdteleop.control import ControlConfig, Teleoperator
+from crowdteleop.control.config import ControlConfig
+from crowdteleop.control.teleoperator import Teleoperator
 from crowdteleop.teleop.clock import FixedRateClock
 from crowdteleop.teleop.commands import CommandBoard, NotInControlError
 from crowdteleop.teleop.config import TeleopConfig, VideoConfig
@@ -27,7 +28,7 @@ POSE = {
     "v": 1,
     "type": "pose",
     "seq": 1,
-    "t": 1.0,
+    "client_time_ms": 1.0,
     "device": "phone",
     "position": [0.0, 0.1, 0.0],
     "quaternion": [0.0, 0.0, 0.0, 1.0],
@@ -78,7 +79,14 @@ def test_oversized_messages_and_foreign_channels_are_rejected():
 
 def test_events_channel_takes_events_not_poses():
     assert _code("events", json.dumps(POSE)) == "unknown_type"
-    clutch = {"v": 1, "type": "clutch", "seq": 2, "t": 0, "device": "phone", "engaged": False}
+    clutch = {
+        "v": 1,
+        "type": "clutch",
+        "seq": 2,
+        "client_time_ms": 0,
+        "device": "phone",
+        "engaged": False,
+    }
     assert isinstance(parse_inbound("events", json.dumps(clutch), 4096), ClutchEvent)
 
 
@@ -118,7 +126,7 @@ def test_latest_pose_wins_and_stale_ones_are_dropped():
 def test_a_late_pose_cannot_undo_a_newer_clutch_release():
     board = CommandBoard()
     board.apply_pose("p1", _pose(1))
-    release = ClutchEvent(seq=3, t=0.0, device="phone", engaged=False)
+    release = ClutchEvent(seq=3, client_time_ms=0.0, device="phone", engaged=False)
     board.apply_event("p1", release)
     board.apply_pose("p1", _pose(2, engaged=True))
     assert not board.command().engaged
@@ -197,8 +205,13 @@ def test_configs_refuse_what_aiortc_would_clamp_or_the_sim_could_not_run():
     with pytest.raises(ValueError, match="bitrates"):
         VideoConfig(codec="h264", min_bitrate_bps=250_000)
     with pytest.raises(ValueError, match="action mode"):
-        TeleopConfig.model_validate({"control": {"controller": "osc"}})
-    assert TeleopConfig.for_controller("osc").sim.action_mode == "osc-pose"
+        TeleopConfig.model_validate(
+            {"control": {"controller": "osc"}, "sim": {"action_mode": "joint-velocity"}}
+        )
+    # named once: the simulation's action mode follows the controller
+    assert TeleopConfig.model_validate({"control": {"controller": "osc"}}).sim.action_mode == (
+        "osc-pose"
+    )
 
 
 def test_mdns_candidates_are_dropped_from_offers_and_nothing_else():
@@ -222,7 +235,7 @@ def test_mdns_candidates_are_dropped_from_offers_and_nothing_else():
 def _step(index: int, success: bool = False):
     import numpy as np
 
-    from crowdteleop.data.recording import StepRecord
+    from crowdteleop.recording.episode_file import StepRecord
 
     return StepRecord(
         index=index,

@@ -12,9 +12,9 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from crowdteleop.control.config import ControllerName
 from crowdteleop.errors import CrowdteleopError
-from crowdteleop.sim.registry import TASKS
+from crowdteleop.tasks import TASKS
+from crowdteleop.vocab import ControllerName
 
 app = typer.Typer(help="crowdteleop: crowdsourced robot teleoperation.", no_args_is_help=True)
 console = Console()
@@ -77,11 +77,13 @@ def _film_demo(
     output: Path,
 ):
     # Heavy imports here so `crowdteleop --help` stays instant.
-    from crowdteleop.control import ControlConfig, Teleoperator
+    from crowdteleop.control.config import ControlConfig
     from crowdteleop.control.scripted import ScriptedOperator, run_episode
-    from crowdteleop.data.video import Mp4Writer
-    from crowdteleop.sim import SimConfig, get_task, make_simulation
+    from crowdteleop.control.teleoperator import Teleoperator
+    from crowdteleop.dataset.video import Mp4Writer
+    from crowdteleop.sim import SimConfig, make_simulation
     from crowdteleop.sim.rendering import validate_resolution
+    from crowdteleop.tasks import get_task
 
     control = ControlConfig(controller=controller)
     validate_resolution(width, height)
@@ -137,8 +139,7 @@ def teleop_server(
         fields.update({key: value for key, value in overrides.items() if value is not None})
         if controller is not None:
             fields["control"] = {**fields.get("control", {}), "controller": controller}
-        chosen = fields.get("control", {}).get("controller", "ik-velocity")
-        sim = {**fields.get("sim", {}), "action_mode": _action_mode(chosen)}
+        sim = dict(fields.get("sim", {}))
         sim.update({key: v for key, v in {"task": task, "robot": robot}.items() if v is not None})
         fields["sim"] = sim
         if codec is not None:
@@ -194,18 +195,10 @@ def _read_json(path: Path) -> dict:
     return json.loads(path.read_text())
 
 
-def _action_mode(controller: str) -> str:
-    from crowdteleop.control.config import ACTION_MODE_FOR_CONTROLLER
-
-    if controller not in ACTION_MODE_FOR_CONTROLLER:
-        raise ValueError(f"unknown controller {controller!r}")
-    return ACTION_MODE_FOR_CONTROLLER[controller]
-
-
 from crowdteleop.coord.cli import serve as _serve  # noqa: E402  (registered last, see coord/cli.py)
 
 app.command("serve")(_serve)
 
-from crowdteleop.data.cli import app as dataset_app  # noqa: E402  (registered last)
+from crowdteleop.dataset.cli import app as dataset_app  # noqa: E402  (registered last)
 
 app.add_typer(dataset_app, name="dataset")

@@ -202,7 +202,9 @@ class TeleopClient:
         elif isinstance(message, Hello):
             state.hello = message
         elif isinstance(message, ServerPing):
-            self.send_raw("events", {"type": "pong", "id": message.id, "t": message.t})
+            self.send_raw(
+                "events", {"type": "pong", "id": message.id, "server_time_s": message.server_time_s}
+            )
         self._changed.set()
 
     # --- sending --------------------------------------------------------------------------
@@ -238,7 +240,7 @@ class TeleopClient:
             {
                 "type": "pose",
                 "seq": seq,
-                "t": self._now_ms(),
+                "client_time_ms": self._now_ms(),
                 "device": self.device,
                 "position": [float(x) for x in position],
                 "quaternion": [float(x) for x in quaternion],
@@ -251,13 +253,17 @@ class TeleopClient:
     def send_clutch(self, engaged: bool) -> int:
         seq = self._next_seq()
         event = {"type": "clutch", "engaged": engaged}
-        self.send_raw("events", {**event, "seq": seq, "t": self._now_ms(), "device": self.device})
+        self.send_raw(
+            "events", {**event, "seq": seq, "client_time_ms": self._now_ms(), "device": self.device}
+        )
         return seq
 
     def send_gripper(self, closed: bool) -> int:
         seq = self._next_seq()
         event = {"type": "gripper", "closed": closed}
-        self.send_raw("events", {**event, "seq": seq, "t": self._now_ms(), "device": self.device})
+        self.send_raw(
+            "events", {**event, "seq": seq, "client_time_ms": self._now_ms(), "device": self.device}
+        )
         return seq
 
     def request(self, kind: str) -> None:

@@ -17,7 +17,7 @@ class DeviceCommand:
 
     position: metres; quaternion: (x, y, z, w), normalized on construction. ``engaged`` is the
     clutch: the arm follows the device only while it is held. ``seq`` orders commands from one
-    device and ``timestamp`` is the client's clock (seconds), both carried into recordings.
+    device and ``client_time_ms`` is the client's clock (milliseconds); both go into recordings.
     """
 
     position: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -26,7 +26,7 @@ class DeviceCommand:
     gripper_closed: bool = False
     reset: bool = False
     seq: int = 0
-    timestamp: float = 0.0
+    client_time_ms: float = 0.0
 
     def __post_init__(self) -> None:
         position = np.asarray(self.position, dtype=float)

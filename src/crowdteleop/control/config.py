@@ -2,14 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Literal
-
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-ControllerName = Literal["ik-velocity", "osc"]
-
-# The simulation action mode each controller drives.
-ACTION_MODE_FOR_CONTROLLER = {"ik-velocity": "joint-velocity", "osc": "osc-pose"}
+from crowdteleop.vocab import ActionMode, ControllerName, action_mode_for
 
 
 class MappingConfig(BaseModel):
@@ -43,5 +38,5 @@ class ControlConfig(BaseModel):
     mapping: MappingConfig = MappingConfig()
 
     @property
-    def action_mode(self) -> str:
-        return ACTION_MODE_FOR_CONTROLLER[self.controller]
+    def action_mode(self) -> ActionMode:
+        return action_mode_for(self.controller)

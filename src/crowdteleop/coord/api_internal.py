@@ -6,7 +6,8 @@ from fastapi import APIRouter
 
 from crowdteleop.coord.deps import CoordinatorDep, Credentials, token_of
 from crowdteleop.coord.errors import ApiError
-from crowdteleop.coord.schemas import EpisodeAck, EpisodeReport, ErrorBody
+from crowdteleop.coord.schemas import EpisodeAck, ErrorBody
+from crowdteleop.teleop.messages import EpisodeReport
 
 ERRORS = {code: {"model": ErrorBody} for code in (401, 403, 422)}
 router = APIRouter(prefix="/internal", tags=["internal"], responses=ERRORS)

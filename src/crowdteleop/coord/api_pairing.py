@@ -9,7 +9,6 @@ from fastapi import APIRouter, Request
 from crowdteleop.coord.deps import CoordinatorDep, OwnedSession, PhoneSession
 from crowdteleop.coord.errors import ApiError
 from crowdteleop.coord.schemas import (
-    AnswerBody,
     ErrorBody,
     OfferBody,
     PairingView,
@@ -19,6 +18,8 @@ from crowdteleop.coord.schemas import (
 )
 from crowdteleop.coord.security import new_pairing_code, normalize_pairing_code
 from crowdteleop.coord.teleop_proxy import forward_offer
+from crowdteleop.tasks import get_task
+from crowdteleop.teleop.messages import OfferAnswer
 
 ERRORS = {code: {"model": ErrorBody} for code in (401, 404, 409, 422, 429)}
 router = APIRouter(prefix="/api", tags=["phone"], responses=ERRORS)
@@ -71,8 +72,6 @@ async def pair(body: PairRequest, request: Request, coordinator: CoordinatorDep)
 @router.get("/phone/session", response_model=PhoneSessionView)
 async def phone_session(session: PhoneSession, coordinator: CoordinatorDep) -> PhoneSessionView:
     """What the phone page shows: the task and whether the robot is ready."""
-    from crowdteleop.sim.registry import get_task
-
     return PhoneSessionView(
         session_id=session.id,
         state=session.state,  # type: ignore[arg-type]
@@ -83,7 +82,7 @@ async def phone_session(session: PhoneSession, coordinator: CoordinatorDep) -> P
     )
 
 
-@router.post("/phone/offer", response_model=AnswerBody)
-async def phone_offer(body: OfferBody, session: PhoneSession, request: Request) -> AnswerBody:
+@router.post("/phone/offer", response_model=OfferAnswer)
+async def phone_offer(body: OfferBody, session: PhoneSession, request: Request) -> OfferAnswer:
     """WebRTC offer from the paired phone (role phone: data channels only, no video)."""
     return await forward_offer(request.app.state.http, session, body, "phone")

@@ -20,7 +20,6 @@ from crowdteleop.coord.deps import Credentials as CredentialsDep
 from crowdteleop.coord.errors import ApiError
 from crowdteleop.coord.identity import identify
 from crowdteleop.coord.schemas import (
-    AnswerBody,
     CampaignView,
     ErrorBody,
     HeartbeatRequest,
@@ -30,6 +29,7 @@ from crowdteleop.coord.schemas import (
     SessionView,
 )
 from crowdteleop.coord.teleop_proxy import forward_offer
+from crowdteleop.teleop.messages import OfferAnswer
 
 ERRORS = {code: {"model": ErrorBody} for code in (401, 404, 409, 422)}
 router = APIRouter(prefix="/api", tags=["workers"], responses=ERRORS)
@@ -127,7 +127,7 @@ async def _end(coordinator: CoordinatorDep, session_id: str, worker: WorkerDep) 
     return await coordinator.view(session, worker)
 
 
-@router.post("/sessions/{session_id}/offer", response_model=AnswerBody)
-async def offer(body: OfferBody, session: OwnedSession, request: Request) -> AnswerBody:
+@router.post("/sessions/{session_id}/offer", response_model=OfferAnswer)
+async def offer(body: OfferBody, session: OwnedSession, request: Request) -> OfferAnswer:
     """WebRTC offer for the session's teleop server (role worker); 409 until it is ready."""
     return await forward_offer(request.app.state.http, session, body, "worker")

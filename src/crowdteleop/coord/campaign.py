@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-Interface = Literal["phone", "keyboard", "vr", "spacemouse", "gamepad"]
-INTERFACES: tuple[Interface, ...] = ("phone", "keyboard", "vr", "spacemouse", "gamepad")
-Controller = Literal["ik-velocity", "osc"]
+from crowdteleop.tasks import TASKS
+from crowdteleop.vocab import WORKER_DEVICES, ControllerName, WorkerDevice
+
 NAME_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
 
 
@@ -29,8 +29,10 @@ class CampaignConfig(BaseModel):
     )
     tasks: list[str] = Field(default_factory=lambda: ["lift"], min_length=1)
     robots: list[str] = Field(default_factory=lambda: ["Sawyer"], min_length=1)
-    controllers: list[Controller] = Field(default_factory=lambda: ["ik-velocity"], min_length=1)
-    interfaces: list[Interface] = Field(default_factory=lambda: list(INTERFACES), min_length=1)
+    controllers: list[ControllerName] = Field(default_factory=lambda: ["ik-velocity"], min_length=1)
+    interfaces: list[WorkerDevice] = Field(
+        default_factory=lambda: list(WORKER_DEVICES), min_length=1
+    )
     demos_required: int = Field(3, ge=1, le=1000)
     time_limit_s: float = Field(1800.0, gt=0, le=24 * 3600, description="per session")
     capacity: int | None = Field(
@@ -45,8 +47,6 @@ class CampaignConfig(BaseModel):
     @field_validator("tasks")
     @classmethod
     def _known_tasks(cls, tasks: list[str]) -> list[str]:
-        from crowdteleop.sim.registry import TASKS
-
         unknown = [task for task in tasks if task not in TASKS]
         if unknown:
             raise ValueError(f"unknown task(s) {unknown}; known: {sorted(TASKS)}")

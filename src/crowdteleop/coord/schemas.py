@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from crowdteleop.coord.campaign import Interface
+from crowdteleop.vocab import Outcome, WorkerDevice
 
 SessionState = Literal["queued", "starting", "ready", "ended"]
 EndedReason = Literal["left", "timeout", "abandoned", "completed", "error"]
@@ -45,7 +45,7 @@ class CampaignView(BaseModel):
     title: str
     instructions: str
     tasks: list[str]
-    interfaces: list[Interface]
+    interfaces: list[WorkerDevice]
     demos_required: int
     time_limit_s: float
 
@@ -66,7 +66,7 @@ class SessionView(BaseModel):
     robot: str
     controller: str
     instruction: str
-    interfaces: list[Interface]
+    interfaces: list[WorkerDevice]
     time_limit_s: float
     time_left_s: float | None = Field(description="while ready: seconds before the time limit")
     demos_done: int
@@ -78,18 +78,12 @@ class SessionView(BaseModel):
 
 
 class HeartbeatRequest(Strict):
-    interface: Interface | None = Field(None, description="the device the worker is using now")
+    interface: WorkerDevice | None = Field(None, description="the device the worker is using now")
 
 
 class OfferBody(Strict):
     sdp: str = Field(max_length=MAX_SDP)
     type: Literal["offer"]
-
-
-class AnswerBody(BaseModel):
-    sdp: str
-    type: str
-    peer_id: str
 
 
 class PairingView(BaseModel):
@@ -116,25 +110,6 @@ class PhoneSessionView(BaseModel):
     ice_servers: list[str]
 
 
-class EpisodeReport(BaseModel):
-    """What a teleop server POSTs for every stored episode (teleop/server.py)."""
-
-    model_config = ConfigDict(extra="ignore")  # newer teleop servers may say more
-
-    session_id: str = Field(max_length=64)
-    worker_id: str = Field(max_length=64)
-    episode: int = Field(ge=0)
-    episode_id: str = Field(min_length=1, max_length=64)
-    outcome: str = Field(max_length=32)
-    steps: int = Field(ge=0)
-    duration_s: float = Field(ge=0)
-    uri: str = Field(max_length=4096)
-    telemetry: dict[str, Any] = Field(default_factory=dict)
-    device: Interface | Literal["bot"] | None = Field(
-        None, description="the device that drove the episode, when the server knows it"
-    )
-
-
 class EpisodeAck(BaseModel):
     episode_id: str
     duplicate: bool
@@ -148,7 +123,7 @@ class EpisodeView(BaseModel):
     session_id: str
     worker_id: str
     number: int
-    outcome: str
+    outcome: Outcome
     steps: int
     duration_s: float
     uri: str

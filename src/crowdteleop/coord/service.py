@@ -18,12 +18,14 @@ from crowdteleop.coord.config import CoordConfig
 from crowdteleop.coord.launcher import Launcher, LaunchError
 from crowdteleop.coord.pool import TeleopPool
 from crowdteleop.coord.queue import expected_remaining_s, mean_session_s, queue_etas
-from crowdteleop.coord.schemas import EpisodeAck, EpisodeReport, SessionView
+from crowdteleop.coord.schemas import EpisodeAck, SessionView
 from crowdteleop.coord.security import new_completion_code, new_id, new_token, token_hash
 from crowdteleop.coord.spares import SpareKey, SparePool
 from crowdteleop.coord.store import Store
 from crowdteleop.coord.tables import Episode, Session, Worker
+from crowdteleop.tasks import get_task
 from crowdteleop.teleop.config import TeleopConfig
+from crowdteleop.teleop.messages import Assignment, EpisodeReport
 
 log = logging.getLogger(__name__)
 
@@ -41,17 +43,18 @@ def deep_merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
     return merged
 
 
-def _assignment(config: TeleopConfig) -> dict[str, Any]:
+def _assignment(config: TeleopConfig) -> Assignment:
     """What a warm spare needs to become the server of the session `config` describes."""
-    return {
-        "session_id": config.session_id,
-        "worker_id": config.worker_id,
-        "token": config.token,
-        "admin_token": config.admin_token,
-        "recording_directory": str(config.recording.directory),
-        "report_url": config.report_url,
-        "report_token": config.report_token,
-    }
+    assert config.admin_token is not None  # the coordinator always gives one
+    return Assignment(
+        session_id=config.session_id,
+        worker_id=config.worker_id,
+        token=config.token,
+        admin_token=config.admin_token,
+        recording_directory=config.recording.directory,
+        report_url=config.report_url,
+        report_token=config.report_token,
+    )
 
 
 class Coordinator:
@@ -171,8 +174,6 @@ class Coordinator:
         await self.store.log("ready", session_id, session.worker_id, url=handle.url)
 
     def teleop_config(self, session: Session, report_token: str) -> TeleopConfig:
-        from crowdteleop.control.config import ACTION_MODE_FOR_CONTROLLER
-
         directory = (self.config.data_dir / "episodes" / session.campaign / session.id).resolve()
         fields = deep_merge(
             self.config.teleop,
@@ -181,11 +182,7 @@ class Coordinator:
                 "worker_id": session.worker_id,
                 "token": session.teleop_token,
                 "admin_token": session.teleop_admin_token,
-                "sim": {
-                    "task": session.task,
-                    "robot": session.robot,
-                    "action_mode": ACTION_MODE_FOR_CONTROLLER[session.controller],
-                },
+                "sim": {"task": session.task, "robot": session.robot},
                 "control": {"controller": session.controller},
                 "recording": {"directory": str(directory)},
                 "ice_servers": list(self.config.ice_servers),
@@ -208,8 +205,6 @@ class Coordinator:
 
     def _spare_config(self, key: SpareKey) -> TeleopConfig:
         """A spare's config: the simulation of `key`, a placeholder identity (standby)."""
-        from crowdteleop.control.config import ACTION_MODE_FOR_CONTROLLER
-
         task, robot, controller = key
         spare_id = f"spare-{secrets.token_hex(6)}"
         fields = deep_merge(
@@ -220,11 +215,7 @@ class Coordinator:
                 "token": new_token(),
                 "admin_token": new_token(),
                 "standby": True,
-                "sim": {
-                    "task": task,
-                    "robot": robot,
-                    "action_mode": ACTION_MODE_FOR_CONTROLLER[controller],
-                },
+                "sim": {"task": task, "robot": robot},
                 "control": {"controller": controller},
                 "recording": {
                     "directory": str((self.config.data_dir / "spares" / spare_id).resolve())
@@ -345,8 +336,6 @@ class Coordinator:
         return {s.id: (i + 1, eta) for i, (s, eta) in enumerate(zip(queued, etas, strict=True))}
 
     async def view(self, session: Session, worker: Worker | None = None) -> SessionView:
-        from crowdteleop.sim.registry import get_task
-
         position, eta = None, None
         if session.state == "queued":
             position, eta = (await self.queue_positions()).get(session.id, (None, None))

@@ -13,12 +13,12 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import Callable
-from typing import Any
 
 import aiohttp
 
 from crowdteleop.coord.launcher import Launcher, LaunchError, TeleopHandle
 from crowdteleop.teleop.config import TeleopConfig
+from crowdteleop.teleop.messages import Assignment
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +63,7 @@ class SparePool:
         self.ready.setdefault(key, []).append((handle, config))
         log.info("spare teleop server ready for %s at %s", key, handle.url)
 
-    async def take(self, key: SpareKey, assignment: dict[str, Any]) -> TeleopHandle | None:
+    async def take(self, key: SpareKey, assignment: Assignment) -> TeleopHandle | None:
         """A running spare for `key`, now assigned to the session; None if there is none."""
         spares = self.ready.get(key, [])
         while spares:
@@ -92,12 +92,12 @@ class SparePool:
         self.ready.clear()
 
 
-async def _assign(url: str, admin_token: str, assignment: dict[str, Any]) -> None:
-    headers = {"Authorization": f"Bearer {admin_token}"}
+async def _assign(url: str, admin_token: str, assignment: Assignment) -> None:
+    headers = {"Authorization": f"Bearer {admin_token}", "Content-Type": "application/json"}
     timeout = aiohttp.ClientTimeout(total=10)
     async with (
         aiohttp.ClientSession(timeout=timeout) as http,
-        http.post(f"{url}/assign", json=assignment, headers=headers) as response,
+        http.post(f"{url}/assign", data=assignment.model_dump_json(), headers=headers) as response,
     ):
         if response.status != 200:
             raise LaunchError(f"assign answered {response.status}: {await response.text()}")

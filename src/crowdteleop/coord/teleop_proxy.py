@@ -7,8 +7,10 @@ import logging
 import aiohttp
 
 from crowdteleop.coord.errors import ApiError
-from crowdteleop.coord.schemas import AnswerBody, OfferBody
+from crowdteleop.coord.schemas import OfferBody
 from crowdteleop.coord.tables import Session
+from crowdteleop.teleop.messages import OfferAnswer, OfferRequest
+from crowdteleop.teleop.protocol import PeerRole
 
 log = logging.getLogger(__name__)
 
@@ -16,16 +18,17 @@ OFFER_TIMEOUT_S = 20.0
 
 
 async def forward_offer(
-    http: aiohttp.ClientSession, session: Session, offer: OfferBody, role: str
-) -> AnswerBody:
+    http: aiohttp.ClientSession, session: Session, offer: OfferBody, role: PeerRole
+) -> OfferAnswer:
     """POST the offer to the session's teleop server; its refusals come back as 4xx."""
     if session.state != "ready" or not session.teleop_url:
         raise ApiError(409, "not_ready", f"the session is {session.state}, not ready")
-    body = {"sdp": offer.sdp, "type": offer.type, "token": session.teleop_token, "role": role}
+    body = OfferRequest(sdp=offer.sdp, token=session.teleop_token, role=role)
     try:
         async with http.post(
             f"{session.teleop_url}/offer",
-            json=body,
+            data=body.model_dump_json(),
+            headers={"Content-Type": "application/json"},
             timeout=aiohttp.ClientTimeout(total=OFFER_TIMEOUT_S),
         ) as response:
             payload = await response.json(content_type=None)
@@ -35,7 +38,7 @@ async def forward_offer(
         raise ApiError(409, "teleop_unavailable", "the robot's server did not answer") from exc
     if status == 200 and isinstance(payload, dict):
         try:
-            return AnswerBody.model_validate(payload)
+            return OfferAnswer.model_validate(payload)
         except ValueError as exc:
             raise ApiError(409, "teleop_unavailable", "the robot's server answered oddly") from exc
     code = payload.get("error", "offer_refused") if isinstance(payload, dict) else "offer_refused"

@@ -3,11 +3,12 @@
 sim = make_simulation(SimConfig(task="lift", robot="Sawyer"))
 sim.reset(seed=0)
 frame = sim.render("frontview", 320, 240)
+
+Importing this package loads no simulator (the coordinator reads `SimConfig` without MuJoCo);
+`make_simulation` imports the backend a task needs. The interface is `crowdteleop.sim.interface`.
 """
 
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.factory import make_simulation
-from crowdteleop.sim.interface import Simulation
-from crowdteleop.sim.registry import TASKS, TaskSpec, get_task
 
-__all__ = ["TASKS", "SimConfig", "Simulation", "TaskSpec", "get_task", "make_simulation"]
+__all__ = ["SimConfig", "make_simulation"]

@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Literal
-
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from crowdteleop.sim.registry import get_task
-
-ActionMode = Literal["joint-velocity", "osc-pose"]
+from crowdteleop.tasks import get_task
+from crowdteleop.vocab import ActionMode
 
 
 class SimConfig(BaseModel):

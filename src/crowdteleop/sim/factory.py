@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from crowdteleop.sim.config import SimConfig
-from crowdteleop.sim.interface import Simulation
-from crowdteleop.sim.registry import get_task
+from crowdteleop.tasks import get_task
+
+if TYPE_CHECKING:  # the interface's types load MuJoCo; a config reader should not pay for it
+    from crowdteleop.sim.interface import Simulation
 
 
 def make_simulation(config: SimConfig) -> Simulation:

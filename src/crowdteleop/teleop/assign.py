@@ -8,25 +8,8 @@ with `POST /assign`: new ids, new tokens, where to record and whom to report to.
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from pydantic import BaseModel, ConfigDict, Field
-
 from crowdteleop.teleop.config import TeleopConfig
-
-
-class Assignment(BaseModel):
-    """Authorized by the spare's current admin token; after it, only the new tokens work."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    session_id: str = Field(min_length=1, max_length=128)
-    worker_id: str = Field(min_length=1, max_length=128)
-    token: str = Field(min_length=8, max_length=256)
-    admin_token: str = Field(min_length=8, max_length=256)
-    recording_directory: Path
-    report_url: str | None = None
-    report_token: str | None = Field(None, min_length=8, max_length=256)
+from crowdteleop.teleop.messages import Assignment
 
 
 def assigned_config(config: TeleopConfig, assignment: Assignment) -> TeleopConfig:

@@ -38,7 +38,7 @@ class CommandBoard:
     engaged: bool = False
     gripper_closed: bool = False
     last_seq: int = -1
-    last_client_time: float = 0.0
+    last_client_time_ms: float = 0.0
     has_pose: bool = False
     # Set when control changes hands; the next `command` shows the clutch released once.
     release_pending: bool = False
@@ -95,7 +95,7 @@ class CommandBoard:
         self.quaternion = np.array(message.quaternion, dtype=float)
         self.engaged = message.engaged
         self.gripper_closed = message.gripper
-        self.last_client_time = message.t
+        self.last_client_time_ms = message.client_time_ms
         self.has_pose = True
         return True
 
@@ -107,7 +107,7 @@ class CommandBoard:
             self.engaged = message.engaged and self.has_pose
         else:
             self.gripper_closed = message.closed
-        self.last_client_time = message.t
+        self.last_client_time_ms = message.client_time_ms
         return True
 
     def command(self) -> DeviceCommand:
@@ -120,14 +120,14 @@ class CommandBoard:
             engaged=engaged,
             gripper_closed=self.gripper_closed,
             seq=max(self.last_seq, 0),
-            timestamp=self.last_client_time,
+            client_time_ms=self.last_client_time_ms,
         )
 
     def raw_command(self) -> dict[str, Any]:
         """What the recorder stores for this step: the device's latest state as sent."""
         return {
             "seq": self.last_seq,
-            "t": self.last_client_time,
+            "client_time_ms": self.last_client_time_ms,
             "device": self.controller.device if self.controller else None,
             "position": self.position.tolist(),
             "quaternion": self.quaternion.tolist(),

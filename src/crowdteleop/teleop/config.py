@@ -8,10 +8,11 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from crowdteleop.control.config import ControlConfig
-from crowdteleop.data.storage import EpisodeStorage
-from crowdteleop.data.stores import StorageConfig, open_storage
+from crowdteleop.recording.storage import EpisodeStorage
+from crowdteleop.recording.stores import StorageConfig, open_storage
 from crowdteleop.sim.config import SimConfig
-from crowdteleop.sim.registry import get_task
+from crowdteleop.tasks import get_task
+from crowdteleop.vocab import CONTROLLERS, action_mode_for
 
 Codec = Literal["vp8", "h264"]
 
@@ -90,7 +91,7 @@ class LimitsConfig(BaseModel):
 
 class RecordingConfig(BaseModel):
     """Where episodes are recorded and stored; ``storage`` picks a local directory (default)
-    or S3 behind a local spool (``crowdteleop.data.stores``, docs/dataset.md)."""
+    or S3 behind a local spool (``crowdteleop.recording.stores``, docs/dataset.md)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -133,12 +134,30 @@ class TeleopConfig(BaseModel):
     telemetry_interval_s: float = Field(1.0, gt=0)
     seed: int = 0
 
+    @model_validator(mode="before")
+    @classmethod
+    def _action_mode_follows_controller(cls, data: object) -> object:
+        """The simulation's action mode is the controller's, filled in here: a config names the
+        controller once (an explicit, different ``sim.action_mode`` is refused below)."""
+        if not isinstance(data, dict):
+            return data
+        control = data.get("control") or {}
+        controller = (
+            control.controller
+            if isinstance(control, ControlConfig)
+            else control.get("controller", "ik-velocity")
+        )
+        sim = data.get("sim") or {}
+        if isinstance(sim, dict) and "action_mode" not in sim and controller in CONTROLLERS:
+            data = {**data, "sim": {**sim, "action_mode": action_mode_for(controller)}}
+        return data
+
     @model_validator(mode="after")
     def _controller_matches_sim(self) -> TeleopConfig:
         if self.control.action_mode != self.sim.action_mode:
             raise ValueError(
                 f"controller {self.control.controller!r} drives action mode "
-                f"{self.control.action_mode!r}; set sim.action_mode to match"
+                f"{self.control.action_mode!r}, not sim.action_mode {self.sim.action_mode!r}"
             )
         if self.admin_token is not None and self.admin_token == self.token:
             raise ValueError("admin_token must differ from the workers' token")
@@ -147,11 +166,3 @@ class TeleopConfig(BaseModel):
     @property
     def episode_time_limit_s(self) -> float:
         return self.time_limit_s or get_task(self.sim.task).time_limit_s
-
-    @classmethod
-    def for_controller(cls, controller: str = "ik-velocity", **fields: object) -> TeleopConfig:
-        """A config whose simulation action mode follows `controller`."""
-        control = ControlConfig(controller=controller)
-        sim_fields = dict(fields.pop("sim", {}) or {})  # type: ignore[call-overload]
-        sim = SimConfig(**{**sim_fields, "action_mode": control.action_mode})
-        return cls(control=control, sim=sim, **fields)  # type: ignore[arg-type]

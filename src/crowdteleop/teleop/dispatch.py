@@ -65,9 +65,9 @@ class Dispatcher:
         elif isinstance(message, StopRequest):
             self.session.request_stop()
         elif isinstance(message, Ping):
-            peer.send(PingReply(id=message.id, t=message.t))
+            peer.send(PingReply(id=message.id, client_time_ms=message.client_time_ms))
         elif isinstance(message, Pong):
-            self.telemetry.rtt_ms.append((time.monotonic() - message.t) * 1e3)
+            self.telemetry.rtt_ms.append((time.monotonic() - message.server_time_s) * 1e3)
         elif isinstance(message, LatencyReport):
             self.telemetry.latency_ms.extend(message.samples_ms)
             if message.fps > 0:

@@ -11,16 +11,17 @@ from typing import Any, Literal
 import numpy as np
 
 from crowdteleop.control.teleoperator import TeleopStep
-from crowdteleop.data.recording import EpisodeRecorder, StepRecord
-from crowdteleop.data.s3 import StorageUnavailableError
-from crowdteleop.data.spool import SpooledStorage
-from crowdteleop.data.storage import EpisodeStorage
-from crowdteleop.data.stores import SavedWhen
-from crowdteleop.data.versions import runtime_versions
+from crowdteleop.recording.episode_file import StepRecord
+from crowdteleop.recording.s3 import StorageUnavailableError
+from crowdteleop.recording.spool import SpooledStorage
+from crowdteleop.recording.storage import EpisodeStorage
+from crowdteleop.recording.stores import SavedWhen
+from crowdteleop.recording.versions import runtime_versions
+from crowdteleop.recording.wal import EpisodeRecorder
+from crowdteleop.vocab import Outcome
 
 log = logging.getLogger(__name__)
 
-Outcome = Literal["success", "reset", "timeout", "disconnect", "crash"]
 SessionState = Literal["ready", "running", "stopped"]
 
 

@@ -13,9 +13,10 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
+from crowdteleop.vocab import DeviceKind, Outcome
+
 PROTOCOL_VERSION = 1
 
-DeviceKind = Literal["phone", "keyboard", "vr", "spacemouse", "gamepad", "bot"]
 PeerRole = Literal["worker", "phone", "admin"]
 Channel = Literal["control", "events", "admin"]
 
@@ -50,7 +51,7 @@ class PoseCommand(_Inbound):
 
     type: Literal["pose"] = "pose"
     seq: Seq
-    t: ClientTime
+    client_time_ms: ClientTime
     device: DeviceKind
     position: tuple[float, float, float]
     quaternion: tuple[float, float, float, float] = Field(description="x, y, z, w")
@@ -80,7 +81,7 @@ class ClutchEvent(_Inbound):
 
     type: Literal["clutch"] = "clutch"
     seq: Seq
-    t: ClientTime
+    client_time_ms: ClientTime
     device: DeviceKind
     engaged: bool
 
@@ -88,7 +89,7 @@ class ClutchEvent(_Inbound):
 class GripperEvent(_Inbound):
     type: Literal["gripper"] = "gripper"
     seq: Seq
-    t: ClientTime
+    client_time_ms: ClientTime
     device: DeviceKind
     closed: bool
 
@@ -121,7 +122,7 @@ class TakeControl(_Inbound):
 class Ping(_Inbound):
     type: Literal["ping"] = "ping"
     id: Seq
-    t: ClientTime
+    client_time_ms: ClientTime
 
 
 class Pong(_Inbound):
@@ -129,7 +130,7 @@ class Pong(_Inbound):
 
     type: Literal["pong"] = "pong"
     id: Seq
-    t: float
+    server_time_s: float = Field(description="the server ping's own time, echoed")
 
 
 class LatencyReport(_Inbound):
@@ -209,13 +210,13 @@ class FrameTag(_Message):
     type: Literal["frame"] = "frame"
     pts: int
     command_seq: int
-    server_time: float
+    server_time_s: float = Field(description="server wall clock when published, seconds")
 
 
 class EpisodeEnded(_Message):
     type: Literal["episode"] = "episode"
     episode: int
-    outcome: Literal["success", "reset", "timeout", "disconnect", "crash"]
+    outcome: Outcome
     steps: int
     successes: int
 
@@ -226,7 +227,7 @@ class EpisodeSaved(_Message):
 
     type: Literal["saved"] = "saved"
     episode: int
-    outcome: Literal["success", "reset", "timeout", "disconnect", "crash"]
+    outcome: Outcome
     uri: str
 
 
@@ -235,13 +236,13 @@ class PingReply(_Message):
 
     type: Literal["pong"] = "pong"
     id: int
-    t: float
+    client_time_ms: float = Field(description="the client ping's own time, echoed")
 
 
 class ServerPing(_Message):
     type: Literal["ping"] = "ping"
     id: int
-    t: float
+    server_time_s: float = Field(description="server monotonic clock, seconds")
 
 
 class Telemetry(_Message):

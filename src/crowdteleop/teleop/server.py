@@ -23,7 +23,7 @@ from aiortc import (
 )
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from crowdteleop.data.recording import recover_orphans
+from crowdteleop.recording.wal import recover_orphans
 from crowdteleop.teleop.assign import Assignment, assigned_config
 from crowdteleop.teleop.clock import FixedRateClock
 from crowdteleop.teleop.config import TeleopConfig
@@ -365,7 +365,9 @@ class TeleopServer:
         video_frame = result.video_frame or self._keepalive_yuv.convert(result.image)
         frame = await self.frames.publish(video_frame, result.command_seq)
         self.telemetry.frame_published()
-        tag = FrameTag(pts=frame.pts, command_seq=frame.command_seq, server_time=frame.server_time)
+        tag = FrameTag(
+            pts=frame.pts, command_seq=frame.command_seq, server_time_s=frame.server_time_s
+        )
         for peer in self.peers.values():
             if peer.wants_video:
                 peer.send(tag)
@@ -452,7 +454,7 @@ class TeleopServer:
         )
         for peer in self.peers.values():
             peer.send(message)
-            peer.send(ServerPing(id=self.clock.stats.ticks, t=time.monotonic()))
+            peer.send(ServerPing(id=self.clock.stats.ticks, server_time_s=time.monotonic()))
 
     async def _update_bitrate(self) -> None:
         """Bits the video senders put on the wire since the last report."""

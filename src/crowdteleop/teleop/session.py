@@ -18,20 +18,20 @@ import numpy as np
 from av import VideoFrame
 
 from crowdteleop.control.teleoperator import Teleoperator
-from crowdteleop.data.storage import EpisodeStorage
+from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.sim.factory import make_simulation
-from crowdteleop.sim.registry import get_task
 from crowdteleop.sim.types import ContactEvent, Pose, TaskProgress
+from crowdteleop.tasks import get_task
 from crowdteleop.teleop.commands import CommandBoard
 from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.episode import (
     EpisodeTracker,
     FinishedEpisode,
-    Outcome,
     step_record,
     store_episode,
 )
 from crowdteleop.teleop.video import YuvConverter
+from crowdteleop.vocab import Outcome
 
 log = logging.getLogger(__name__)
 

@@ -55,7 +55,7 @@ class PublishedFrame:
     pts: int  # RTP clock ticks since the session's first frame
     frame: VideoFrame  # yuv420p; one object per publication, never re-sent with another pts
     command_seq: int
-    server_time: float
+    server_time_s: float
 
 
 class FrameSource:

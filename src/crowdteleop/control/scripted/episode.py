@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from crowdteleop.control.scripted.operator import ScriptedOperator
 from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
-from crowdteleop.sim.registry import get_task
+from crowdteleop.tasks import get_task
 
 # robosuite's demonstration collector ends an episode after this many successful steps.
 SUCCESS_HOLD_STEPS = 10

@@ -100,7 +100,7 @@ class ScriptedOperator:
             engaged=True,
             gripper_closed=self._gripper_closed,
             seq=self._seq,
-            timestamp=self._seq * self._dt,
+            client_time_ms=1000.0 * self._seq * self._dt,
         )
 
     # --- internals -------------------------------------------------------------------------

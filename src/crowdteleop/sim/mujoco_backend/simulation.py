@@ -17,7 +17,6 @@ from crowdteleop.errors import (
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms
 from crowdteleop.sim.mujoco_backend import scene
-from crowdteleop.sim.registry import TaskSpec, get_task
 from crowdteleop.sim.rendering import CameraRenderer
 from crowdteleop.sim.types import (
     ActionSpec,
@@ -30,6 +29,7 @@ from crowdteleop.sim.types import (
     flat_state,
     validate_state,
 )
+from crowdteleop.tasks import TaskSpec, get_task
 
 # The scene has one arm of its own; "Sawyer" (SimConfig's default) is accepted so a config
 # written for the robosuite backend only needs its task changed.

@@ -14,7 +14,6 @@ from crowdteleop.errors import UnknownRobotError
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, touching
 from crowdteleop.sim.fastrender import FastSceneRenderer
-from crowdteleop.sim.registry import TaskSpec, get_task
 from crowdteleop.sim.robosuite_backend import fast_model, model_fixes, tasks
 from crowdteleop.sim.robosuite_backend.controllers import (
     arm_controller_config,
@@ -33,6 +32,7 @@ from crowdteleop.sim.types import (
     flat_state,
     validate_state,
 )
+from crowdteleop.tasks import TaskSpec, get_task
 
 logging.getLogger("robosuite").setLevel(logging.ERROR)
 

@@ -85,8 +85,12 @@ export class GamepadDevice {
 // 3Dconnexion SpaceMouse over WebHID: report 1 = translation, 2 = rotation (int16 x3, +-350),
 // 3 = buttons (left = gripper toggle, right = clutch while held).
 export class SpaceMouseDevice {
-  constructor() { this.kind = "spacemouse"; this.hand = new VirtualHand(); this.t = [0, 0, 0];
-                  this.r = [0, 0, 0]; this.gripper = false; this.engaged = true; this.device = null; }
+  constructor() {
+    this.kind = "spacemouse"; this.hand = new VirtualHand(); this.device = null;
+    this.translation = [0, 0, 0];  // x, y, z deflection, -1..1
+    this.rotation = [0, 0, 0];  // about x, y, z, -1..1
+    this.gripper = false; this.engaged = true;
+  }
   static get supported() { return "hid" in navigator; }
   async open() {
     const [device] = await navigator.hid.requestDevice({ filters: [{ vendorId: 0x256f }, { vendorId: 0x046d }] });
@@ -97,8 +101,8 @@ export class SpaceMouseDevice {
   }
   #report({ reportId, data }) {
     const read = () => [0, 2, 4].map((o) => data.getInt16(o, true) / 350);
-    if (reportId === 1) this.t = read();
-    else if (reportId === 2) this.r = read();
+    if (reportId === 1) this.translation = read();
+    else if (reportId === 2) this.rotation = read();
     else if (reportId === 3) {
       const buttons = data.getUint8(0);
       if (buttons & 1) this.gripper = !this.gripper;
@@ -107,8 +111,8 @@ export class SpaceMouseDevice {
   }
   update(dt) {
     if (!this.device) return null;
-    this.hand.move([-this.t[1] * MAX_SPEED, -this.t[0] * MAX_SPEED, -this.t[2] * MAX_SPEED],
-                   this.r.map((v) => -v * MAX_TURN), dt);
+    const [x, y, z] = this.translation;
+    this.hand.move([-y * MAX_SPEED, -x * MAX_SPEED, -z * MAX_SPEED], this.rotation.map((v) => -v * MAX_TURN), dt);
     return { position: this.hand.position, quaternion: this.hand.quaternion,
              engaged: this.engaged, gripper: this.gripper };
   }

@@ -4,15 +4,33 @@
 
 import { call } from "./api.js";
 import { quatMultiply } from "./devices.js";
-import { loadProtocol } from "./protocol.js";
+import { Protocol } from "./protocol.js";
 import { TeleopConnection } from "./rtc.js";
 
 const $ = (id) => document.getElementById(id);
 const SEND_HZ = 30;
 const PAD_METRES = 0.4;  // a drag across the whole pad moves the hand this far
 
-const phone = { connection: null, position: [0, 0, 0], quaternion: [0, 0, 0, 1], engaged: false,
-                gripper: false, source: "none", haptics: 0, xr: null };
+// All of the page's state, declared here and sealed so it cannot grow fields by accident.
+// Exposed as window.crowdteleop for end-to-end tests (the one global).
+class PhoneState {
+  constructor() {
+    this.protocol = null;  // the loaded Protocol (schema from /protocol.json)
+    this.token = null;  // the phone token pairing gave
+    this.connection = null;
+    this.position = [0, 0, 0];  // metres, the device frame
+    this.quaternion = [0, 0, 0, 1];  // x, y, z, w
+    this.engaged = false;
+    this.gripper = false;
+    this.source = "none";  // what moves the hand: "none", "orientation" or "xr"
+    this.haptics = 0;  // haptic events received
+    this.xr = null;  // the WebXR session, while AR tracking runs
+    this.ready = false;
+    Object.seal(this);
+  }
+}
+
+const phone = new PhoneState();
 window.crowdteleop = phone;
 
 function banner(kind, text) {
@@ -150,8 +168,8 @@ async function pair(code) {
   const session = await call("/api/phone/session", { token: phone.token });
   if (session.state !== "ready") throw new Error("your robot is not ready yet: try again in a moment");
   const connection = new TeleopConnection({
-    offerUrl: "/api/phone/offer", authorization: `Bearer ${phone.token}`, device: "phone",
-    iceServers: session.ice_servers, video: false,
+    protocol: phone.protocol, offerUrl: "/api/phone/offer", authorization: `Bearer ${phone.token}`,
+    device: "phone", iceServers: session.ice_servers, video: false,
   });
   phone.connection = connection;
   await connection.connect();
@@ -167,7 +185,7 @@ async function pair(code) {
 
 async function main() {
   if (!("RTCPeerConnection" in window)) { banner("error", "This browser has no WebRTC: use Chrome or Safari."); return; }
-  try { await loadProtocol(); } catch (error) { banner("error", error.message); return; }
+  try { phone.protocol = await Protocol.load(); } catch (error) { banner("error", error.message); return; }
   const submit = async (code) => {
     try { await pair(code); }
     catch (error) { banner("error", error.status === 404 ? "That code is wrong or has expired: get a new one on your computer." : error.message); }

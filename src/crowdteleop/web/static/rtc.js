@@ -1,51 +1,32 @@
 // WebRTC to a teleop server, signalled through the coordinator: the page's half of
 // crowdteleop.client.connection (same channels, same messages, same latency matching).
 
-import { MessageFactory } from "./protocol.js";
+import { FrameMatcher, LatencyTracker } from "./latency.js";
+import { MessageFactory, ProtocolViolation } from "./protocol.js";
 
-const RTP_MODULO = 2 ** 32;
-
-// Frames are tagged by the server with their RTP-clock pts and the last command they show; the
-// browser sees pts plus an unknown offset, found as the one under which frames land on tags.
-export class FrameMatcher {
-  constructor() { this.tags = new Map(); this.offset = null; this.recent = []; }
-  addTag(pts, commandSeq) {
-    this.tags.set(pts, commandSeq);
-    if (this.tags.size > 600) this.tags.delete(this.tags.keys().next().value);
-  }
-  commandSeqOf(rtp) {
-    const mod = (x) => ((x % RTP_MODULO) + RTP_MODULO) % RTP_MODULO;
-    if (this.offset !== null && this.tags.has(mod(rtp - this.offset))) {
-      return this.tags.get(mod(rtp - this.offset));
-    }
-    this.recent.push(rtp);
-    if (this.recent.length > 8) this.recent.shift();
-    if (this.recent.length < 3) return null;
-    const candidates = [...this.tags.keys()].slice(-60).reverse();
-    for (const pts of candidates) {
-      const offset = mod(rtp - pts);
-      const hits = this.recent.slice(0, -1).filter((r) => this.tags.has(mod(r - offset))).length;
-      if (hits >= 2) { this.offset = offset; return this.tags.get(pts); }
-    }
-    return null;
-  }
-}
+const LATENCY_REPORT_MS = 1000;
+const FPS_WINDOW_FRAMES = 60;
 
 export class TeleopConnection extends EventTarget {
-  constructor({ offerUrl, authorization, device, iceServers = [], video = true }) {
+  // `protocol` is the loaded Protocol: every message in and out is checked against its schema.
+  constructor({ protocol, offerUrl, authorization, device, iceServers = [], video = true }) {
     super();
+    this.protocol = protocol;
     this.offerUrl = offerUrl;
     this.authorization = authorization;
     this.messages = new MessageFactory(device);
     this.video = video;
     this.pc = new RTCPeerConnection({ iceServers: iceServers.map((urls) => ({ urls })) });
+    this.control = null;
+    this.events = null;
+    this.latencyTimer = null;
     this.matcher = new FrameMatcher();
-    this.sentAt = new Map();
-    this.shownUpTo = 0;
-    this.latencies = [];
-    this.reported = 0;
+    this.latency = new LatencyTracker();  // performance.now() milliseconds
+    this.reportedSamples = 0;  // how many of latency.samplesMs went to the server
     this.framesShown = 0;
-    this.frameTimes = [];
+    this.firstFrameAt = null;  // wall clock (Date.now()) ms of the first frame, for benchmarks
+    this.frameTimesMs = [];  // performance.now() of the latest frames, for fps
+    this.stats = { refusedOutgoing: 0, ignoredIncoming: 0 };  // messages the schema refused
     this.state = { hello: null, status: null, telemetry: null, haptics: 0, saved: [],
                    episodes: [], errors: [] };
   }
@@ -78,7 +59,7 @@ export class TeleopConnection extends EventTarget {
       this.addEventListener("hello", () => { clearTimeout(timer); resolve(); }, { once: true });
     });
     timeline.hello = Date.now();
-    this.latencyTimer = setInterval(() => this.#reportLatency(), 1000);
+    this.latencyTimer = setInterval(() => this.#reportLatency(), LATENCY_REPORT_MS);
   }
 
   close() {
@@ -97,44 +78,44 @@ export class TeleopConnection extends EventTarget {
 
   #emit(type, detail) { this.dispatchEvent(new CustomEvent(type, { detail })); }
 
-  #send(channel, message) {
-    const target = channel === "control" ? this.control : this.events;
+  // Checked against the schema first: a message the server would refuse is not sent at all.
+  #send(message) {
+    let wire;
+    try {
+      wire = this.protocol.encode(message);
+    } catch (error) {
+      if (!(error instanceof ProtocolViolation)) throw error;
+      this.stats.refusedOutgoing += 1;
+      console.error(error.message, message);
+      return false;
+    }
+    const target = wire.channel === "control" ? this.control : this.events;
     if (!target || target.readyState !== "open") return false;
-    target.send(JSON.stringify(message));
+    target.send(wire.data);
     return true;
   }
 
   sendPose(position, quaternion, engaged, gripper, seq) {
     const message = this.messages.pose(position, quaternion, engaged, gripper, seq);
-    this.sentAt.set(message.seq, performance.now());
-    if (this.sentAt.size > 2000) this.sentAt.delete(this.sentAt.keys().next().value);
-    this.#send("control", message);
+    if (this.#send(message)) this.latency.commandSent(message.seq, performance.now());
     return message.seq;
   }
-  sendClutch(engaged) { return this.#send("events", this.messages.clutch(engaged)); }
-  sendGripper(closed) { return this.#send("events", this.messages.gripper(closed)); }
-  request(type) { return this.#send("events", this.messages.request(type)); }
-  takeControl() { return this.#send("events", this.messages.takeControl()); }
+  sendClutch(engaged) { return this.#send(this.messages.clutch(engaged)); }
+  sendGripper(closed) { return this.#send(this.messages.gripper(closed)); }
+  request(type) { return this.#send(this.messages.request(type)); }
+  takeControl() { return this.#send(this.messages.takeControl()); }
 
   // requestVideoFrameCallback hands us each frame as it is presented, with its RTP timestamp.
   watchVideo(videoElement) {
     if (!("requestVideoFrameCallback" in HTMLVideoElement.prototype)) return;
-    const onFrame = (now, metadata) => {
-      if (this.framesShown === 0) this.firstFrameAt = Date.now();  // wall clock, for benchmarks
+    const onFrame = (nowMs, metadata) => {
+      if (this.framesShown === 0) this.firstFrameAt = Date.now();
       this.framesShown += 1;
-      this.frameTimes.push(now);
-      if (this.frameTimes.length > 60) this.frameTimes.shift();
+      this.frameTimesMs.push(nowMs);
+      if (this.frameTimesMs.length > FPS_WINDOW_FRAMES) this.frameTimesMs.shift();
       if (metadata.rtpTimestamp !== undefined) {
         const seq = this.matcher.commandSeqOf(metadata.rtpTimestamp);
-        if (seq !== null && seq > this.shownUpTo) {
-          for (const [sent, at] of this.sentAt) {
-            if (sent > this.shownUpTo && sent <= seq) {
-              this.latencies.push(now - at);
-              this.sentAt.delete(sent);
-            }
-          }
-          this.shownUpTo = seq;
-        }
+        if (seq !== null) this.latency.frameShown(seq, nowMs);
       }
       videoElement.requestVideoFrameCallback(onFrame);
     };
@@ -142,24 +123,32 @@ export class TeleopConnection extends EventTarget {
   }
 
   fps() {
-    const t = this.frameTimes;
-    return t.length < 2 ? 0 : (1000 * (t.length - 1)) / (t[t.length - 1] - t[0]);
+    const times = this.frameTimesMs;
+    const spanMs = times.length < 2 ? 0 : times[times.length - 1] - times[0];
+    return spanMs > 0 ? (1000 * (times.length - 1)) / spanMs : 0;
   }
 
   latencyMs(quantile = 0.5) {
-    const recent = this.latencies.slice(-200).sort((a, b) => a - b);
+    const recent = this.latency.samplesMs.slice(-200).sort((a, b) => a - b);
     return recent.length ? recent[Math.min(recent.length - 1, Math.round(quantile * (recent.length - 1)))] : null;
   }
 
   #reportLatency() {
-    const samples = this.latencies.slice(this.reported, this.reported + 100).map((x) => Math.max(0, x));
-    this.reported += samples.length;
-    this.#send("events", { v: 1, type: "latency", samples_ms: samples, fps: this.fps() });
+    const samples = this.latency.samplesMs.slice(this.reportedSamples, this.reportedSamples + 100);
+    this.reportedSamples += samples.length;
+    this.#send(this.messages.latency(samples, this.fps()));
   }
 
   #onMessage(raw) {
     let message;
-    try { message = JSON.parse(raw); } catch { return; }
+    try {
+      message = this.protocol.decode(raw);
+    } catch (error) {
+      if (!(error instanceof ProtocolViolation)) throw error;
+      this.stats.ignoredIncoming += 1;
+      console.warn(error.message, raw);
+      return;
+    }
     const s = this.state;
     switch (message.type) {
       case "hello": s.hello = message; break;
@@ -170,7 +159,7 @@ export class TeleopConnection extends EventTarget {
       case "episode": s.episodes.push(message); break;
       case "saved": s.saved.push(message); break;
       case "error": s.errors.push(message); break;
-      case "ping": this.#send("events", { v: 1, type: "pong", id: message.id, t: message.t }); return;
+      case "ping": this.#send(this.messages.pong(message)); return;
       default: break;
     }
     this.#emit(message.type, message);

@@ -2,19 +2,51 @@
 
 import { call, worker } from "./api.js";
 import { GamepadDevice, KEY_LEGEND, KeyboardDevice, SpaceMouseDevice, VRControllerDevice } from "./devices.js";
-import { loadProtocol } from "./protocol.js";
+import { Protocol } from "./protocol.js";
 import { TeleopConnection } from "./rtc.js";
 
 const $ = (id) => document.getElementById(id);
 const HEARTBEAT_MS = 5000;
 const SEND_HZ = 30;
 
-const page = {
-  view: null, connection: null, device: null, external: false, pairing: null,
-  devices: {}, lastCommand: null, ended: false,
-  timeline: { loaded: Date.now() },  // wall-clock marks of the way to the first frame
-};
-window.crowdteleop = page;  // what the end-to-end tests and curious users can look at
+// All of the page's state, declared here and sealed: a typo'd or new field throws instead of
+// quietly growing the object. Exposed as window.crowdteleop for end-to-end tests, benchmarks
+// and curious users (the one global).
+class TeleopPage {
+  constructor() {
+    this.protocol = null;  // the loaded Protocol (schema from /protocol.json)
+    this.token = null;  // the worker token from the join page
+    this.view = null;  // the coordinator's latest view of the session
+    this.connection = null;
+    this.devices = {};
+    this.device = null;  // the input device whose commands this page sends
+    this.external = false;  // a script drives through `drive`: the keyboard stays quiet
+    this.pairing = null;
+    this.lastCommand = null;
+    this.refusedAtMs = 0;  // performance.now() of the last not_in_control refusal
+    this.tookControlAtMs = 0;  // performance.now() of our last take_control
+    this.tookControlForScript = false;
+    this.ended = false;
+    this.ready = false;
+    this.timeline = { loaded: Date.now() };  // wall-clock ms marks of the way to the first frame
+    Object.seal(this);
+  }
+
+  // For scripted drivers (tests, demos): commands that enter through this page's data channel
+  // exactly as the keyboard's do. The keyboard stays quiet while a script drives.
+  drive(position, quaternion, engaged, gripper, seq) {
+    this.external = true;
+    const driver = this.connection.state.status && this.connection.state.status.controlling_device;
+    if (driver && driver !== this.connection.messages.device && !this.tookControlForScript) {
+      this.connection.takeControl();
+      this.tookControlForScript = true;
+    }
+    return this.connection.sendPose(position, quaternion, engaged, gripper, seq);
+  }
+}
+
+const page = new TeleopPage();
+window.crowdteleop = page;
 
 function banner(kind, text) {
   const element = $("banner");
@@ -123,11 +155,11 @@ function controlLoop() {
       // Another device drives, or the same kind on another connection (a tab left open, or
       // one reloaded before the server noticed the old one gone): the server refused our last
       // command. Pressing keys is asking to drive.
-      const refused = (page.refusedAt || 0) > (page.tookControlAt || 0);
+      const refused = page.refusedAtMs > page.tookControlAtMs;
       const otherDevice = driver && driver !== page.device.kind;
-      if (busy && (otherDevice || refused) && now - (page.tookControlAt || 0) > 1000) {
+      if (busy && (otherDevice || refused) && now - page.tookControlAtMs > 1000) {
         page.connection.takeControl();
-        page.tookControlAt = now;
+        page.tookControlAtMs = now;
       }
       page.connection.sendPose(command.position, command.quaternion, command.engaged, command.gripper);
       page.lastCommand = key;
@@ -148,7 +180,7 @@ function showStatus() {
   });
   c.addEventListener("error", ({ detail }) => {
     if (detail.code === "not_in_control") {  // not the worker's fault: their keys take over
-      page.refusedAt = performance.now();
+      page.refusedAtMs = performance.now();
       return;
     }
     banner("error", detail.message);
@@ -203,7 +235,7 @@ async function main() {
     return;
   }
   try {
-    await loadProtocol();
+    page.protocol = await Protocol.load();
     showView(await call("/api/sessions", { method: "POST", token: page.token }));
     page.timeline.session = Date.now();
   } catch (error) {
@@ -221,8 +253,8 @@ async function main() {
   page.timeline.ready = Date.now();
   clearBanner();
   const connection = new TeleopConnection({
-    offerUrl: `/api/sessions/${page.view.session_id}/offer`, authorization: `Bearer ${page.token}`,
-    device: "keyboard", iceServers: page.view.ice_servers,
+    protocol: page.protocol, offerUrl: `/api/sessions/${page.view.session_id}/offer`,
+    authorization: `Bearer ${page.token}`, device: "keyboard", iceServers: page.view.ice_servers,
   });
   page.connection = connection;
   connection.addEventListener("track", ({ detail }) => { $("video").srcObject = detail.stream; });
@@ -243,17 +275,5 @@ async function main() {
   pairPhone();
   page.ready = true;
 }
-
-// For scripted drivers (tests, demos): commands that enter through this page's data channel
-// exactly as the keyboard's do. The keyboard stays quiet while a script drives.
-page.drive = (position, quaternion, engaged, gripper, seq) => {
-  page.external = true;
-  const driver = page.connection.state.status && page.connection.state.status.controlling_device;
-  if (driver && driver !== page.connection.messages.device && !page.tookControlForScript) {
-    page.connection.takeControl();
-    page.tookControlForScript = true;
-  }
-  return page.connection.sendPose(position, quaternion, engaged, gripper, seq);
-};
 
 main();

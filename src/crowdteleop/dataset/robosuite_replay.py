@@ -15,11 +15,12 @@ import numpy as np
 import robosuite
 from robosuite.controllers import load_composite_controller_config
 
-from crowdteleop.control import ControlConfig, DeviceCommand, Teleoperator
+from crowdteleop.control.command import DeviceCommand
+from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.scripted import ScriptedOperator, run_episode
-from crowdteleop.control.teleoperator import TeleopStep
+from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
 from crowdteleop.sim import SimConfig, make_simulation
-from crowdteleop.sim.registry import get_task
+from crowdteleop.tasks import get_task
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from crowdteleop.data.dataset import DatasetError, open_dataset
-from crowdteleop.data.episode_file import CorruptEpisodeError, Episode, read_episode
+from crowdteleop.dataset.build import DatasetError, open_dataset
+from crowdteleop.recording.episode_file import CorruptEpisodeError, Episode, read_episode
 
 
 @dataclass(frozen=True)
@@ -169,7 +169,7 @@ class ReplayChecker:
         has no controller that reads our joint-velocity actions the way our servo does)."""
         if demo.metadata.get("action_mode") != "osc-pose":
             return None
-        from crowdteleop.analysis.robosuite_replay import RobosuiteReplayer
+        from crowdteleop.dataset.robosuite_replay import RobosuiteReplayer
 
         sim = self.start(demo)
         initial_joints = sim.robot_state().joint_positions.copy()
@@ -209,7 +209,7 @@ class ReplayChecker:
         progress: Callable[[int, int], None] | None = None,
     ) -> ReplayResult:
         """Set every recorded state (filmed to ``output`` if given), then measure drift."""
-        from crowdteleop.data.video import Mp4Writer
+        from crowdteleop.dataset.video import Mp4Writer
 
         sim = self.start(demo)
         camera = camera or str(demo.metadata.get("camera") or "frontview")

@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from crowdteleop.data.episode_file import Outcome
-from crowdteleop.data.versions import runtime_versions
-from crowdteleop.data.wal import EpisodeRecorder, StepRecord
+from crowdteleop.recording.versions import runtime_versions
+from crowdteleop.recording.wal import EpisodeRecorder, StepRecord
+from crowdteleop.vocab import Outcome
 
 
 @dataclass(frozen=True)
@@ -39,9 +39,10 @@ def scripted_rig(
     task: str = "lift", controller: str = "ik-velocity", model_seed: int = 0
 ) -> Iterator[Any]:
     """(sim, teleop, operator factory, metadata) for one task; closes the simulation."""
-    from crowdteleop.control import ControlConfig, Teleoperator
+    from crowdteleop.control.config import ControlConfig
+    from crowdteleop.control.teleoperator import Teleoperator
     from crowdteleop.sim import SimConfig, make_simulation
-    from crowdteleop.sim.registry import get_task
+    from crowdteleop.tasks import get_task
 
     control = ControlConfig(controller=controller)
     config = SimConfig(task=task, action_mode=control.action_mode, model_seed=model_seed)
@@ -106,7 +107,7 @@ def record_scripted_episode(
                 action=np.asarray(step.action, dtype=float),
                 command={
                     "seq": recorder.steps,
-                    "t": started_wall,
+                    "client_time_ms": 1000.0 * started_wall,
                     "engaged": bool(command.engaged),
                     "position": np.asarray(command.position).tolist(),
                     "quaternion": np.asarray(command.quaternion).tolist(),

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from crowdteleop.data.dataset import DemoSummary
+from crowdteleop.dataset.build import DemoSummary
 
 GROUPINGS = {"interface": "interface", "network condition": "network", "worker": "worker"}
 

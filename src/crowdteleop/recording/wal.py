@@ -42,12 +42,11 @@ from typing import Any
 
 import numpy as np
 
-from crowdteleop.data.episode_file import (
+from crowdteleop.errors import InvalidActionError, InvalidStateError
+from crowdteleop.recording.episode_file import (
     EPISODE_SUFFIX,
-    OUTCOMES,
     CorruptEpisodeError,
     InvalidRecordError,
-    Outcome,
     PartialEpisode,
     RecordingError,
     StepRecord,
@@ -56,9 +55,9 @@ from crowdteleop.data.episode_file import (
     to_json,
     write_episode,
 )
-from crowdteleop.data.storage import fsync_directory
-from crowdteleop.data.wal_codec import FRAME, decode_step, encode_steps, frame
-from crowdteleop.errors import InvalidActionError, InvalidStateError
+from crowdteleop.recording.storage import fsync_directory
+from crowdteleop.recording.wal_codec import FRAME, decode_step, encode_steps, frame
+from crowdteleop.vocab import OUTCOMES, Outcome
 
 log = logging.getLogger(__name__)
 

@@ -27,10 +27,10 @@ from typing import Any
 import h5py
 import numpy as np
 
-from crowdteleop.data.episode_file import DEMO, CorruptEpisodeError, Episode, read_episode
-from crowdteleop.data.storage import fsync_directory
-from crowdteleop.data.versions import SCHEMA_VERSION, runtime_versions
 from crowdteleop.errors import CrowdteleopError
+from crowdteleop.recording.episode_file import DEMO, CorruptEpisodeError, Episode, read_episode
+from crowdteleop.recording.storage import fsync_directory
+from crowdteleop.recording.versions import SCHEMA_VERSION, runtime_versions
 
 DATASET_FORMAT = "crowdteleop-dataset"
 COPIED = (
@@ -202,7 +202,7 @@ def build_dataset(
     report = BuildReport(output=output, skipped=skipped)
     drifts: list[float | None] = [None] * len(chosen)
     if drift_tolerance is not None:
-        from crowdteleop.data.replay import ReplayChecker
+        from crowdteleop.dataset.replay import ReplayChecker
 
         with ReplayChecker() as checker:
             for i, (_, episode) in enumerate(chosen):

@@ -23,8 +23,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from crowdteleop.data.dataset import DatasetError, open_dataset
-from crowdteleop.data.replay import Demo, ReplayChecker, load_demo
+from crowdteleop.dataset.build import DatasetError, open_dataset
+from crowdteleop.dataset.replay import Demo, ReplayChecker, load_demo
 
 Progress = Callable[[int, int], None]
 LOW_DIM = {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_closed": 1}
@@ -121,8 +121,8 @@ def export_lerobot(
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from crowdteleop.data.video import Mp4Writer
-    from crowdteleop.sim.registry import get_task
+    from crowdteleop.dataset.video import Mp4Writer
+    from crowdteleop.tasks import get_task
 
     if output.exists() and any(output.iterdir()):
         raise DatasetError(f"{output} is not empty; choose a new directory for the export")

@@ -25,8 +25,8 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from crowdteleop.data.s3 import StorageAccessError, backoff_delays
-from crowdteleop.data.storage import (
+from crowdteleop.recording.s3 import StorageAccessError, backoff_delays
+from crowdteleop.recording.storage import (
     EpisodeStorage,
     KeyExistsError,
     StorageError,

@@ -1,8 +1,8 @@
 """Where finished episodes go: a storage interface, and a local directory that implements it.
 
 Keys are S3-style relative paths (``lift/2024-05-01/ep-42.hdf5``); ``put`` returns a URI that
-``get`` accepts. ``crowdteleop.data.s3`` puts S3-compatible object storage behind the same
-interface and ``crowdteleop.data.spool`` a local spool in front of it.
+``get`` accepts. ``crowdteleop.recording.s3`` puts S3-compatible object storage behind the same
+interface and ``crowdteleop.recording.spool`` a local spool in front of it.
 """
 
 from __future__ import annotations

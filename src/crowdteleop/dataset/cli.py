@@ -61,7 +61,7 @@ def _progress(description: str) -> Iterator[Callable[[int, int], None]]:
 
 def _local_sources(sources: list[str], endpoint: str | None, work: Path) -> list[Path]:
     """Directories and files as given; ``s3://bucket/prefix`` downloaded into ``work``."""
-    from crowdteleop.data.s3 import S3Config, S3Storage
+    from crowdteleop.recording.s3 import S3Config, S3Storage
 
     paths = []
     for source in sources:
@@ -96,7 +96,7 @@ def build(
     s3_endpoint: Annotated[str | None, typer.Option(help="endpoint of s3:// sources")] = None,
 ) -> None:
     """Assemble episode files into a robomimic-compatible demo.hdf5."""
-    from crowdteleop.data.dataset import build_dataset
+    from crowdteleop.dataset.build import build_dataset
 
     with _clear_errors(), tempfile.TemporaryDirectory() as work:
         paths = _local_sources(sources, s3_endpoint, Path(work))
@@ -139,7 +139,7 @@ def replay(
     ] = False,
 ) -> None:
     """Re-simulate a demo from its states into an MP4; check state replay, measure drift."""
-    from crowdteleop.data.replay import ReplayChecker, load_demo
+    from crowdteleop.dataset.replay import ReplayChecker, load_demo
 
     with _clear_errors(), ReplayChecker() as checker:
         loaded = load_demo(path, demo)
@@ -175,8 +175,8 @@ def stats(
     bins: Annotated[int, typer.Option(help="histogram bins")] = 10,
 ) -> None:
     """Counts, hours, success rates, completion times and KS tests, as the paper's tables."""
-    from crowdteleop.analysis.stats import markdown, write_report
-    from crowdteleop.data.dataset import dataset_demos, episode_files, read_inputs, summarize
+    from crowdteleop.dataset.build import dataset_demos, episode_files, read_inputs, summarize
+    from crowdteleop.dataset.stats import markdown, write_report
 
     with _clear_errors():
         demos = []
@@ -217,7 +217,7 @@ def export(
     height: Annotated[int, typer.Option(help="image height")] = 84,
 ) -> None:
     """Re-render image observations from the states into robomimic or LeRobot v3 layout."""
-    from crowdteleop.data.export import export_lerobot, export_robomimic
+    from crowdteleop.dataset.export import export_lerobot, export_robomimic
 
     cameras = camera or ["agentview"]
     with _clear_errors(), _progress(f"rendering {', '.join(cameras)}") as progress:

@@ -12,16 +12,15 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any
 
 import h5py
 import numpy as np
 
-from crowdteleop.data.storage import fsync_directory
 from crowdteleop.errors import CrowdteleopError
+from crowdteleop.recording.storage import fsync_directory
+from crowdteleop.vocab import Outcome
 
-Outcome = Literal["success", "reset", "timeout", "disconnect", "crash"]
-OUTCOMES: tuple[str, ...] = get_args(Outcome)
 EPISODE_SUFFIX = ".hdf5"
 
 
@@ -196,7 +195,7 @@ def _command_columns(commands: list[dict[str, Any]]) -> dict[str, np.ndarray]:
     """The device commands as columns; a field a command lacks is NaN / -1 / False / ""."""
     return {
         "seq": np.array([_int(c.get("seq")) for c in commands], dtype=np.int64),
-        "client_time": np.array([_floats(c.get("t"), 1)[0] for c in commands]),
+        "client_time_ms": np.array([_floats(c.get("client_time_ms"), 1)[0] for c in commands]),
         "position": np.array([_floats(c.get("position"), 3) for c in commands]).reshape(-1, 3),
         "quaternion": np.array([_floats(c.get("quaternion"), 4) for c in commands]).reshape(-1, 4),
         "engaged": np.array([c.get("engaged") is True for c in commands], dtype=bool),

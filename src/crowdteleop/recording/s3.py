@@ -26,7 +26,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, SecretStr
 
-from crowdteleop.data.storage import (
+from crowdteleop.recording.storage import (
     InvalidKeyError,
     KeyExistsError,
     ObjectNotFoundError,

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from crowdteleop.data.episode_file import InvalidRecordError, StepRecord, to_json
+from crowdteleop.recording.episode_file import InvalidRecordError, StepRecord, to_json
 
 log = logging.getLogger(__name__)
 
@@ -33,9 +33,10 @@ _STEP = struct.Struct("<qdddBII")  # index, server_time, step_duration_s, reward
 _COMPACT = struct.Struct("<cqdddBIIBqd3d4d?dB7sHI")
 _COMMAND_PACKED, _GRIPPER_BOOL, _CONTACTS_PACKED = 1, 2, 4  # flags
 # A command is packed when it has exactly these keys (in any order, kept) with exact types:
-# seq int, t float, device one of _DEVICES, position 3 and quaternion 4 floats in lists,
-# engaged bool, gripper float or bool; all finite. Anything else is stored as JSON.
-_COMMAND_KEYS = ("seq", "t", "device", "position", "quaternion", "engaged", "gripper")
+# seq int, client_time_ms float, device one of _DEVICES, position 3 and quaternion 4 floats in
+# lists, engaged bool, gripper float or bool; all finite. Anything else is stored as JSON.
+_COMMAND_KEYS = ("seq", "client_time_ms", "device", "position", "quaternion", "engaged", "gripper")
+# The codes are part of the log format: append, never reorder ("scripted": in-process operators).
 _DEVICES = (None, "phone", "keyboard", "vr", "spacemouse", "gamepad", "bot", "scripted")
 _DEVICE_CODES = {device: code for code, device in enumerate(_DEVICES)}
 _KEY_ORDERS: dict[tuple[str, ...], bytes] = {}  # a command's key tuple -> its order code
@@ -112,7 +113,12 @@ def _pack_command(command: dict[str, Any]) -> tuple[int, tuple[Any, ...]]:
     order = _KEY_ORDERS.get(tuple(command)) or _key_order(command)
     if order is None:
         return 0, _NO_COMMAND
-    seq, t, gripper, engaged = command["seq"], command["t"], command["gripper"], command["engaged"]
+    seq, t, gripper, engaged = (
+        command["seq"],
+        command["client_time_ms"],
+        command["gripper"],
+        command["engaged"],
+    )
     position, quaternion = command["position"], command["quaternion"]
     try:
         p0, p1, p2 = position
@@ -233,7 +239,7 @@ def _decode_compact(payload: bytes, index: int) -> StepRecord:
     if flags & _COMMAND_PACKED:
         values = {
             "seq": seq,
-            "t": t,
+            "client_time_ms": t,
             "device": _DEVICES[device],
             "position": [p0, p1, p2],
             "quaternion": [q0, q1, q2, q3],

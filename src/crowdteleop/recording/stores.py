@@ -7,9 +7,9 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from crowdteleop.data.s3 import S3Config, S3Storage
-from crowdteleop.data.spool import SpooledStorage
-from crowdteleop.data.storage import EpisodeStorage, LocalDirectoryStorage
+from crowdteleop.recording.s3 import S3Config, S3Storage
+from crowdteleop.recording.spool import SpooledStorage
+from crowdteleop.recording.storage import EpisodeStorage, LocalDirectoryStorage
 
 SavedWhen = Literal["stored", "spooled"]
 

@@ -1,1 +1,0 @@
-"""Analysis of recorded episodes: replay fidelity, statistics."""

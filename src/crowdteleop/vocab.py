@@ -1,0 +1,39 @@
+"""The platform's shared vocabularies: one definition each, imported by every process.
+
+Plain `Literal` types, so pydantic validates them at every boundary, the JSON Schema the
+browser reads lists their values, and the type checker catches a misspelt one.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, get_args
+
+Outcome = Literal["success", "reset", "timeout", "disconnect", "crash"]
+"""How an episode ended: held success, the worker's reset, the time limit, the controlling
+device leaving, or a simulation failure."""
+OUTCOMES: tuple[Outcome, ...] = get_args(Outcome)
+
+WorkerDevice = Literal["phone", "keyboard", "vr", "spacemouse", "gamepad"]
+"""What a person drives the robot with; a campaign offers some of them."""
+WORKER_DEVICES: tuple[WorkerDevice, ...] = get_args(WorkerDevice)
+
+DeviceKind = Literal[WorkerDevice, "bot"]
+"""What sends device commands: a person's device, or a scripted bot."""
+DEVICE_KINDS: tuple[DeviceKind, ...] = (*WORKER_DEVICES, "bot")
+
+ControllerName = Literal["ik-velocity", "osc"]
+"""The control law turning a desired end-effector pose into simulation actions."""
+CONTROLLERS: tuple[ControllerName, ...] = get_args(ControllerName)
+
+ActionMode = Literal["joint-velocity", "osc-pose"]
+"""The action space a simulation accepts."""
+
+ACTION_MODE_FOR_CONTROLLER: dict[ControllerName, ActionMode] = {
+    "ik-velocity": "joint-velocity",
+    "osc": "osc-pose",
+}
+
+
+def action_mode_for(controller: ControllerName) -> ActionMode:
+    """The simulation action mode `controller` drives: derived, never configured twice."""
+    return ACTION_MODE_FOR_CONTROLLER[controller]
