@@ -53,7 +53,7 @@ def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
     paths = []
     records: list[Any] = []  # every recorded step, to time the flusher's packing after
     with scripted_rig("lift") as rig:
-        sim, teleop, control, metadata = rig
+        sim, teleop, control = rig.sim, rig.teleop, rig.control
         step_once = teleop.step
         for seed in range(episodes):
             tracker = EpisodeTracker(
@@ -61,7 +61,9 @@ def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
                 time_limit_s=math.inf,  # run_episode decides when the episode ends
                 success_hold_steps=2**31,
                 recordings=directory,
-                metadata={**metadata, "session_id": f"bench-{seed}", "reset_seed": seed},
+                metadata=rig.metadata.model_copy(
+                    update={"session_id": f"bench-{seed}", "reset_seed": seed}
+                ),
             )
             board = CommandBoard()
             operator = ScriptedOperator(sim, control.mapping, seed=seed)

@@ -27,7 +27,7 @@ from pathlib import Path
 import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from tests.ready import wait_ready
+from tests.fixtures.ready import wait_ready
 
 from crowdteleop.coord.launcher import teleop_server_argv
 

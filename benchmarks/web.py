@@ -24,8 +24,8 @@ from pathlib import Path
 import httpx
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from tests.coord_fixtures import coord_server
-from tests.web_browser import browser_context
+from tests.fixtures.browser import browser_context
+from tests.fixtures.coord import coord_server
 
 TARGET_P95_S = 3.0
 

@@ -19,9 +19,9 @@ from aiortc.mediastreams import MediaStreamError
 
 from crowdteleop.client.latency import FrameMatcher, LatencyTracker
 from crowdteleop.client.receiver import complete_frames_on_marker
+from crowdteleop.teleop.messages import OfferAnswer, OfferRequest
 from crowdteleop.teleop.protocol import (
     PROTOCOL_VERSION,
-    DeviceKind,
     EpisodeEnded,
     EpisodeSaved,
     ErrorEvent,
@@ -35,6 +35,7 @@ from crowdteleop.teleop.protocol import (
     Telemetry,
     parse_server_message,
 )
+from crowdteleop.vocab import DeviceKind
 
 log = logging.getLogger(__name__)
 
@@ -117,25 +118,28 @@ class TeleopClient:
             self.pc.addTransceiver("video", direction="recvonly")
             self.pc.on("track", self._on_track)
         await self.pc.setLocalDescription(await self.pc.createOffer())
-        body = {
-            "sdp": self.pc.localDescription.sdp,
-            "type": self.pc.localDescription.type,
-            "token": self.token,
-            "role": self.role,
-        }
-        if self.admin_token:
-            body["admin_token"] = self.admin_token
+        offer = OfferRequest(
+            sdp=self.pc.localDescription.sdp,
+            token=self.token,
+            role=self.role,
+            admin_token=self.admin_token or None,
+        )
         async with (
             aiohttp.ClientSession() as http,
-            http.post(f"{self.base_url}/offer", json=body) as response,
+            http.post(
+                f"{self.base_url}/offer",
+                data=offer.model_dump_json(),
+                headers={"Content-Type": "application/json"},
+            ) as response,
         ):
             answer = await response.json()
             if response.status != 200:
                 raise OfferRefusedError(
                     response.status, answer.get("error", "?"), answer.get("message", "")
                 )
-        self.peer_id = answer["peer_id"]
-        await self.pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
+        accepted = OfferAnswer.model_validate(answer)
+        self.peer_id = accepted.peer_id
+        await self.pc.setRemoteDescription(RTCSessionDescription(accepted.sdp, accepted.type))
         await self.wait_for(lambda s: s.hello is not None, timeout)
 
     async def close(self) -> None:

@@ -14,6 +14,7 @@ import qpsolvers  # mink's QP front end
 
 from crowdteleop.sim.mjcf import kinematics_only, without_free_joints
 from crowdteleop.sim.types import KinematicModel, Pose, RobotState
+from crowdteleop.vocab import ActionMode
 
 IK_ITERATIONS = 1  # one Gauss-Newton step per control step; the next step refines it
 IK_STEP_S = 1.0  # each iteration takes a full Gauss-Newton step toward the target
@@ -21,7 +22,7 @@ POSITION_TOLERANCE_M = 5e-4
 
 
 class IKVelocityController:
-    action_mode = "joint-velocity"
+    action_mode: ActionMode = "joint-velocity"
 
     def __init__(self, kinematics: KinematicModel, kv: float) -> None:
         self.kv = kv

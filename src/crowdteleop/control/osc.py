@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from crowdteleop.sim.types import Pose, RobotState
+from crowdteleop.vocab import ActionMode
 
 POSITION_SCALE_M = 0.05
 ROTATION_SCALE_RAD = 0.5
@@ -18,7 +19,7 @@ class OSCController:
     """`gain` > 1 leads the goal past the target a little: OSC's goal is only partly reached
     within one control step, so a unit gain converges slowly at the end."""
 
-    action_mode = "osc-pose"
+    action_mode: ActionMode = "osc-pose"
 
     def __init__(self, gain: float = 2.0, lead_time_s: float = 0.1) -> None:
         self.gain = gain

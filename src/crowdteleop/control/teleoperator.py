@@ -15,17 +15,20 @@ from crowdteleop.control.osc import OSCController
 from crowdteleop.errors import ConfigError
 from crowdteleop.sim.interface import Simulation
 from crowdteleop.sim.types import Pose, RobotState, StepResult
+from crowdteleop.vocab import ActionMode
 
 
-class Controller(Protocol):
-    action_mode: str
+class ControlLaw(Protocol):
+    """Turns a target end-effector pose into one simulation action (IK velocity or OSC)."""
+
+    action_mode: ActionMode
 
     def reset(self) -> None: ...
 
     def action(self, target: Pose, gripper_closed: bool, robot: RobotState) -> np.ndarray: ...
 
 
-def make_controller(config: ControlConfig, sim: Simulation) -> Controller:
+def make_controller(config: ControlConfig, sim: Simulation) -> ControlLaw:
     if sim.action_spec.mode != config.action_mode:
         raise ConfigError(
             f"controller {config.controller!r} needs a simulation in action mode "

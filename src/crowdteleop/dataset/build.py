@@ -29,6 +29,7 @@ import numpy as np
 
 from crowdteleop.errors import CrowdteleopError
 from crowdteleop.recording.episode_file import DEMO, CorruptEpisodeError, Episode, read_episode
+from crowdteleop.recording.metadata import EpisodeMetadata
 from crowdteleop.recording.storage import fsync_directory
 from crowdteleop.recording.versions import SCHEMA_VERSION, runtime_versions
 
@@ -79,8 +80,8 @@ class BuildReport:
 
 def interface_of(episode: Episode) -> str:
     """The interface the worker used: as recorded, else the devices that sent commands."""
-    named = episode.metadata.get("interface")
-    if isinstance(named, str) and named:
+    named = EpisodeMetadata.model_validate(episode.metadata).interface
+    if named:
         return named
     devices = Counter(c.get("device") for c in episode.commands if c.get("device"))
     return devices.most_common(1)[0][0] if devices else "unknown"
@@ -107,21 +108,18 @@ def network_of(metadata: dict[str, Any]) -> str:
 
 
 def summarize(name: str, episode: Episode, drift: float | None = None) -> DemoSummary:
-    metadata = episode.metadata
-    hz = float(
-        metadata.get("control_hz") or (metadata.get("sim_config") or {}).get("control_hz") or 20.0
-    )
+    info = EpisodeMetadata.model_validate(episode.metadata)
     return DemoSummary(
         name=name,
         episode_id=episode.episode_id,
-        task=str(metadata.get("task", "unknown")),
+        task=info.task,
         outcome=episode.outcome,
         interface=interface_of(episode),
-        worker=str(metadata.get("worker_id") or "unknown"),
-        network=network_of(metadata),
-        campaign=str(metadata.get("campaign") or ""),
+        worker=info.worker_id or "unknown",
+        network=network_of(episode.metadata),
+        campaign=str(episode.metadata.get("campaign") or ""),
         steps=episode.steps,
-        completion_s=episode.steps / hz,
+        completion_s=episode.steps / info.control_hz,
         drift=drift,
     )
 
@@ -266,6 +264,7 @@ def _write(
                 if name in source[DEMO]:
                     source.copy(source[DEMO][name], data, name=f"{demo.name}/{name}")
         group = data[demo.name]
+        info = EpisodeMetadata.model_validate(episode.metadata)
         recorded_versions = episode.metadata.get("versions") or {}
         group.attrs.update(
             num_samples=episode.steps,
@@ -274,8 +273,8 @@ def _write(
             outcome=episode.outcome,
             recovered=episode.recovered,
             task=demo.task,
-            robot=str(episode.metadata.get("robot", "")),
-            controller=str(episode.metadata.get("controller", "")),
+            robot=info.robot,
+            controller=info.controller or "",
             interface=demo.interface,
             worker=demo.worker,
             campaign=demo.campaign,

@@ -147,7 +147,7 @@ def export_lerobot(
     tasks: dict[str, int] = {}
     image_stats = {camera: _RunningImageStats() for camera in cameras}
     video_keys = [f"observation.images.{camera}" for camera in cameras]
-    fps = float(load_demo(dataset, names[0]).metadata.get("control_hz") or 20.0)
+    fps = load_demo(dataset, names[0]).info.control_hz
     tick = _frame_counter(progress, total)
     with ReplayChecker() as checker, contextlib.ExitStack() as stack:
         writers = {
@@ -159,7 +159,7 @@ def export_lerobot(
         for episode_index, name in enumerate(names):
             demo = load_demo(dataset, name)
             obs = render_observations(checker, demo, cameras, width, height, tick)
-            task = get_task(str(demo.metadata.get("task", "lift"))).instruction
+            task = get_task(demo.info.task).instruction
             task_index = tasks.setdefault(task, len(tasks))
             n = len(demo.states)
             start = len(frames["index"])

@@ -10,6 +10,7 @@ replay from their actions" complaint is about, measured for every demo at build 
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -21,6 +22,7 @@ import numpy as np
 
 from crowdteleop.dataset.build import DatasetError, open_dataset
 from crowdteleop.recording.episode_file import CorruptEpisodeError, Episode, read_episode
+from crowdteleop.recording.metadata import EpisodeMetadata
 
 
 @dataclass(frozen=True)
@@ -32,6 +34,11 @@ class Demo:
     actions: np.ndarray
     model_xml: str
     metadata: dict[str, Any]
+
+    @functools.cached_property
+    def info(self) -> EpisodeMetadata:
+        """The metadata, typed (defaults where an older recording lacks a field)."""
+        return EpisodeMetadata.model_validate(self.metadata)
 
 
 @dataclass(frozen=True)
@@ -119,8 +126,8 @@ class ReplayChecker:
         """The recording's simulation, checked to hold the recorded model."""
         from crowdteleop.sim import SimConfig, make_simulation
 
-        raw = demo.metadata.get("sim_config")
-        if not isinstance(raw, dict):
+        raw = demo.info.sim_config
+        if not raw:
             raise DatasetError(f"{demo.name} has no sim_config: it cannot be re-simulated")
         key = json.dumps(raw, sort_keys=True)
         if key not in self._sims:
@@ -141,8 +148,8 @@ class ReplayChecker:
         state, so without it one-step replay is not exact (the joint-velocity servo has no
         such memory)."""
         sim = self.simulation(demo)
-        seed = demo.metadata.get("reset_seed")
-        if isinstance(seed, int) and not isinstance(seed, bool):
+        seed = demo.info.reset_seed
+        if seed is not None:
             sim.reset(seed=seed)
         sim.set_state(demo.states[0])
         return sim
@@ -167,7 +174,7 @@ class ReplayChecker:
     def robosuite_drift(self, demo: Demo) -> RobosuiteDrift | None:
         """Action replay in plain robosuite, for ``osc-pose`` demos (None for others: robosuite
         has no controller that reads our joint-velocity actions the way our servo does)."""
-        if demo.metadata.get("action_mode") != "osc-pose":
+        if demo.info.action_mode != "osc-pose":
             return None
         from crowdteleop.dataset.robosuite_replay import RobosuiteReplayer
 
@@ -179,10 +186,10 @@ class ReplayChecker:
             sim.step(action)
             ours.append(sim.robot_state().end_effector.position.copy())
         replayer = RobosuiteReplayer(
-            str(demo.metadata["task"]),
+            demo.info.task,
             demo.model_xml,
-            str(demo.metadata.get("robot", "Sawyer")),
-            float(demo.metadata.get("control_hz", 20.0)),
+            demo.info.robot,
+            demo.info.control_hz,
         )
         try:
             per_step = replayer.per_step(list(demo.states), demo.actions, initial_joints)
@@ -212,7 +219,7 @@ class ReplayChecker:
         from crowdteleop.dataset.video import Mp4Writer
 
         sim = self.start(demo)
-        camera = camera or str(demo.metadata.get("camera") or "frontview")
+        camera = camera or demo.info.camera
         state_exact = step_exact = True
         max_step_error = 0.0
         frames = 0

@@ -17,9 +17,14 @@ from typing import Any
 
 import numpy as np
 
+from crowdteleop.control.config import ControlConfig
+from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
+from crowdteleop.recording.metadata import EpisodeMetadata
 from crowdteleop.recording.versions import runtime_versions
 from crowdteleop.recording.wal import EpisodeRecorder, StepRecord
-from crowdteleop.vocab import Outcome
+from crowdteleop.sim.interface import Simulation
+from crowdteleop.teleop.episode import episode_metadata
+from crowdteleop.vocab import ControllerName, Outcome
 
 
 @dataclass(frozen=True)
@@ -34,44 +39,37 @@ class ScriptedEpisode:
     record_cpu_seconds: float  # ... and in the appends (a busy machine inflates wall times)
 
 
+@dataclass(frozen=True)
+class ScriptedRig:
+    """One task's simulation, its control pipeline and what its episodes' files say."""
+
+    sim: Simulation
+    teleop: Teleoperator
+    control: ControlConfig
+    metadata: EpisodeMetadata
+
+
 @contextmanager
 def scripted_rig(
-    task: str = "lift", controller: str = "ik-velocity", model_seed: int = 0
-) -> Iterator[Any]:
-    """(sim, teleop, operator factory, metadata) for one task; closes the simulation."""
-    from crowdteleop.control.config import ControlConfig
-    from crowdteleop.control.teleoperator import Teleoperator
+    task: str = "lift", controller: ControllerName = "ik-velocity", model_seed: int = 0
+) -> Iterator[ScriptedRig]:
+    """A rig for one task; closes the simulation."""
     from crowdteleop.sim import SimConfig, make_simulation
-    from crowdteleop.tasks import get_task
 
     control = ControlConfig(controller=controller)
     config = SimConfig(task=task, action_mode=control.action_mode, model_seed=model_seed)
     sim = make_simulation(config)
     try:
-        spec = get_task(task)
-        metadata = {
-            "task": task,
-            "robot": config.robot,
-            "controller": controller,
-            "action_mode": config.action_mode,
-            "control_hz": config.control_hz,
-            "camera": "frontview",
-            "sim_config": config.model_dump(mode="json"),
-            "control_config": control.model_dump(mode="json"),
-            "model_xml": sim.mjcf_xml(),
-            "env_args": {
-                "env_name": spec.env_name,
-                "type": 1,
-                "env_kwargs": {"robots": [config.robot], **spec.env_kwargs},
-            },
-        }
-        yield sim, Teleoperator(sim, control), control, metadata
+        metadata = episode_metadata(
+            config, control, camera="frontview", model_xml=sim.mjcf_xml(), reset_seed=0
+        )
+        yield ScriptedRig(sim, Teleoperator(sim, control), control, metadata)
     finally:
         sim.close()
 
 
 def record_scripted_episode(
-    rig: Any,
+    rig: ScriptedRig,
     directory: Path,
     episode_id: str,
     seed: int,
@@ -82,12 +80,12 @@ def record_scripted_episode(
     """One scripted episode recorded into ``directory/<episode_id>.hdf5``; with ``finalize``
     False the recorder is left open, as the teleop server hands it to ``store_episode``."""
     from crowdteleop.control.scripted import ScriptedOperator, run_episode
-    from crowdteleop.control.teleoperator import TeleopStep
 
-    sim, teleop, control, metadata = rig
+    sim, teleop, control = rig.sim, rig.teleop, rig.control
     extra = dict(extra_metadata or {})
     # reset_seed: replaying OSC actions needs the episode's reset (its null-space posture)
-    recorder = EpisodeRecorder(directory, episode_id, {**metadata, "reset_seed": seed})
+    metadata = rig.metadata.model_copy(update={"reset_seed": seed}).to_record()
+    recorder = EpisodeRecorder(directory, episode_id, metadata)
     operator = ScriptedOperator(sim, control.mapping, seed=seed)
     step_once = teleop.step
     timing = {"step": 0.0, "record": 0.0, "step_cpu": 0.0, "record_cpu": 0.0}

@@ -31,6 +31,7 @@ from crowdteleop.recording.storage import (
     KeyExistsError,
     ObjectNotFoundError,
     StorageError,
+    StorageUnavailableError,
     validate_key,
 )
 
@@ -49,10 +50,6 @@ _ACCESS_CODES = {
     "403",
 }
 _BUCKET_CODES = {"NoSuchBucket", "InvalidBucketName", "PermanentRedirect", "301"}
-
-
-class StorageUnavailableError(StorageError):
-    """The store cannot be reached or answered with a server error: worth retrying later."""
 
 
 class StorageAccessError(StorageError):
@@ -116,6 +113,12 @@ class S3Storage:
 
     def uri(self, key: str) -> str:
         return f"s3://{self.config.bucket}/{self._object_key(key)}"
+
+    def wait_durable(self, key: str, timeout_s: float) -> None:
+        """``put`` returns after the store confirmed size and digests: nothing to wait for."""
+
+    def close(self) -> None:
+        """boto3's client needs no closing; here for the storage interface."""
 
     def check(self) -> None:
         """Raise ``StorageAccessError`` / ``StorageUnavailableError`` unless the bucket is

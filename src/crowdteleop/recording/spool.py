@@ -30,6 +30,7 @@ from crowdteleop.recording.storage import (
     EpisodeStorage,
     KeyExistsError,
     StorageError,
+    StorageUnavailableError,
     file_sha256,
     fsync_directory,
     validate_key,
@@ -144,6 +145,16 @@ class SpooledStorage:
                 self._wake.set()
                 self._changed.wait(min(remaining, 0.2))  # 0.2: another process may upload it
         return True
+
+    def wait_durable(self, key: str, timeout_s: float) -> None:
+        """The store confirmed ``key`` within ``timeout_s``, or ``StorageUnavailableError``: the
+        object then stays spooled and is uploaded when the store is back."""
+        if not self.wait(key, timeout_s):
+            raise StorageUnavailableError(
+                f"{key} is spooled in {self.directory} but the store did not confirm it within "
+                f"{timeout_s:.0f} s ({self.last_error or 'no answer'}); it will be uploaded when "
+                "the store is back"
+            )
 
     def drain(self, timeout_s: float) -> bool:
         """Block until nothing is pending (True) or ``timeout_s`` passed (False)."""

@@ -24,6 +24,10 @@ class StorageError(CrowdteleopError, RuntimeError):
     """The store could not do what was asked."""
 
 
+class StorageUnavailableError(StorageError):
+    """The store cannot be reached or answered with a server error: worth retrying later."""
+
+
 class InvalidKeyError(CrowdteleopError, ValueError):
     """A key or URI that does not name an object of this store."""
 
@@ -59,6 +63,16 @@ class EpisodeStorage(Protocol):
         """The URI of ``key`` (whether or not it is stored)."""
         ...
 
+    def wait_durable(self, key: str, timeout_s: float) -> None:
+        """Return once the object at ``key`` is in its final store; raise
+        ``StorageUnavailableError`` if that takes longer than ``timeout_s``. A store whose
+        ``put`` is already final returns at once; a spool waits for its upload."""
+        ...
+
+    def close(self) -> None:
+        """Stop background work (a spool's upload thread); pending objects stay on disk."""
+        ...
+
 
 class LocalDirectoryStorage:
     """``file://`` objects under a root directory.
@@ -75,6 +89,12 @@ class LocalDirectoryStorage:
 
     def uri(self, key: str) -> str:
         return self._path(key).as_uri()
+
+    def wait_durable(self, key: str, timeout_s: float) -> None:
+        """``put`` fsync'd the object and its directories: nothing to wait for."""
+
+    def close(self) -> None:
+        """Nothing runs in the background."""
 
     def put(self, local_path: Path, key: str) -> str:
         source = Path(local_path)

@@ -8,12 +8,15 @@ from typing import Any
 import numpy as np
 
 from crowdteleop.control.command import DeviceCommand
-from crowdteleop.teleop.protocol import ClutchEvent, DeviceKind, GripperEvent, PoseCommand
+from crowdteleop.teleop.protocol import ClutchEvent, GripperEvent, PoseCommand
+from crowdteleop.vocab import DeviceKind
 
 
 @dataclass(frozen=True)
-class Controller:
-    """The (peer, device) pair in control. Switching is explicit: `take_control`."""
+class Driver:
+    """The (peer, device) pair driving the arm. Switching is explicit: `take_control`.
+
+    Not to be confused with the control law (`crowdteleop.control.teleoperator.ControlLaw`)."""
 
     peer_id: str
     device: DeviceKind
@@ -32,7 +35,7 @@ class CommandBoard:
     pose can never undo a newer clutch release.
     """
 
-    controller: Controller | None = None
+    driver: Driver | None = None
     position: np.ndarray = field(default_factory=lambda: np.zeros(3))
     quaternion: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0]))
     engaged: bool = False
@@ -44,11 +47,11 @@ class CommandBoard:
     release_pending: bool = False
 
     def take_control(self, peer_id: str, device: DeviceKind) -> bool:
-        """Make (peer, device) the controller; returns whether anything changed."""
-        new = Controller(peer_id, device)
-        if new == self.controller:
+        """Make (peer, device) the driver; returns whether anything changed."""
+        new = Driver(peer_id, device)
+        if new == self.driver:
             return False
-        self.controller = new
+        self.driver = new
         self.engaged = False  # a new device starts with the clutch released
         self.last_seq = -1
         self.has_pose = False
@@ -60,9 +63,9 @@ class CommandBoard:
 
     def release(self, peer_id: str) -> bool:
         """The peer left: nobody drives until a device takes control."""
-        if self.controller is None or self.controller.peer_id != peer_id:
+        if self.driver is None or self.driver.peer_id != peer_id:
             return False
-        self.controller = None
+        self.driver = None
         self.engaged = False
         self.last_seq = -1
         self.has_pose = False
@@ -75,12 +78,12 @@ class CommandBoard:
 
     def _check(self, peer_id: str, device: DeviceKind, seq: int) -> bool:
         """False for stale messages; raises NotInControlError for other devices."""
-        if self.controller is None:
+        if self.driver is None:
             self.take_control(peer_id, device)
-        if self.controller != Controller(peer_id, device):
+        if self.driver != Driver(peer_id, device):
             raise NotInControlError(
                 f"{device} on this connection does not drive the arm "
-                f"({self.controller.device if self.controller else 'nobody'} does); "
+                f"({self.driver.device if self.driver else 'nobody'} does); "
                 "send take_control to switch"
             )
         if seq <= self.last_seq:
@@ -128,7 +131,7 @@ class CommandBoard:
         return {
             "seq": self.last_seq,
             "client_time_ms": self.last_client_time_ms,
-            "device": self.controller.device if self.controller else None,
+            "device": self.driver.device if self.driver else None,
             "position": self.position.tolist(),
             "quaternion": self.quaternion.tolist(),
             "engaged": self.engaged,

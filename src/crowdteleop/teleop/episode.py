@@ -10,15 +10,17 @@ from typing import Any, Literal
 
 import numpy as np
 
+from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.teleoperator import TeleopStep
 from crowdteleop.recording.episode_file import StepRecord
-from crowdteleop.recording.s3 import StorageUnavailableError
-from crowdteleop.recording.spool import SpooledStorage
+from crowdteleop.recording.metadata import EnvArgs, EpisodeMetadata
 from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.recording.stores import SavedWhen
 from crowdteleop.recording.versions import runtime_versions
 from crowdteleop.recording.wal import EpisodeRecorder
-from crowdteleop.vocab import Outcome
+from crowdteleop.sim.config import SimConfig
+from crowdteleop.tasks import get_task
+from crowdteleop.vocab import DeviceKind, Outcome
 
 log = logging.getLogger(__name__)
 
@@ -32,6 +34,7 @@ class FinishedEpisode:
     outcome: Outcome
     steps: int
     recorder: EpisodeRecorder | None
+    device: DeviceKind | None = None  # the device driving when the episode started
 
 
 @dataclass
@@ -47,7 +50,7 @@ class EpisodeTracker:
     time_limit_s: float
     success_hold_steps: int
     recordings: Path
-    metadata: dict[str, Any]
+    metadata: EpisodeMetadata
     flush_interval_s: float = 1.0
     state: SessionState = "ready"
     number: int = 0
@@ -56,6 +59,7 @@ class EpisodeTracker:
     _held: int = 0
     _recorder: EpisodeRecorder | None = field(default=None, repr=False)
     _episode_id: str = ""
+    _device: DeviceKind | None = None
 
     @property
     def elapsed_s(self) -> float:
@@ -65,18 +69,20 @@ class EpisodeTracker:
     def recording(self) -> bool:
         return self.state == "running"
 
-    def maybe_start(self, engaged: bool) -> bool:
+    def maybe_start(self, engaged: bool, device: DeviceKind | None = None) -> bool:
         """Start an episode if the session is ready and the clutch is held."""
         if self.state != "ready" or not engaged:
             return False
+        self._device = device
         self.number += 1
         self.steps = 0
         self._held = 0
-        self._episode_id = f"{self.metadata.get('session_id', 'session')}-{uuid.uuid4().hex[:12]}"
+        session = self.metadata.session_id or "session"
+        self._episode_id = f"{session}-{uuid.uuid4().hex[:12]}"
         self._recorder = EpisodeRecorder(
             self.recordings,
             self._episode_id,
-            {**self.metadata, "episode": self.number},
+            self.metadata.model_copy(update={"episode": self.number}).to_record(),
             flush_interval_s=self.flush_interval_s,
         )
         self.state = "running"
@@ -102,11 +108,42 @@ class EpisodeTracker:
             if outcome == "success":
                 self.successes += 1
             finished = FinishedEpisode(
-                self.number, self._episode_id, outcome, self.steps, self._recorder
+                self.number, self._episode_id, outcome, self.steps, self._recorder, self._device
             )
         self._recorder = None
         self.state = "stopped" if stop else "ready"
         return finished
+
+
+def episode_metadata(
+    sim: SimConfig,
+    control: ControlConfig,
+    camera: str,
+    model_xml: str,
+    reset_seed: int,
+    session_id: str | None = None,
+    worker_id: str | None = None,
+) -> EpisodeMetadata:
+    """How an episode on this simulation is made: written by the teleop session and the
+    scripted rig alike, so tests and benchmarks record the very files workers produce."""
+    task = get_task(sim.task)
+    return EpisodeMetadata(
+        session_id=session_id,
+        worker_id=worker_id,
+        task=sim.task,
+        robot=sim.robot,
+        controller=control.controller,
+        action_mode=sim.action_mode,
+        control_hz=sim.control_hz,
+        camera=camera,
+        sim_config=sim.model_dump(mode="json"),
+        control_config=control.model_dump(mode="json"),
+        model_xml=model_xml,
+        reset_seed=reset_seed,
+        env_args=EnvArgs(
+            env_name=task.env_name, env_kwargs={"robots": [sim.robot], **task.env_kwargs}
+        ),
+    )
 
 
 def step_record(
@@ -162,16 +199,8 @@ def store_episode(
     key = f"{folder}/{path.name}"
     uri = storage.put(path, key)
     path.unlink(missing_ok=True)  # storage (or its spool) holds its own fsync'd copy now
-    if (
-        isinstance(storage, SpooledStorage)
-        and saved_when == "stored"
-        and not storage.wait(key, store_wait_s)
-    ):
-        raise StorageUnavailableError(
-            f"episode {finished.episode_id} is spooled in {storage.directory} but the store did "
-            f"not confirm it within {store_wait_s:.0f} s ({storage.last_error or 'no answer'}); "
-            "it will be uploaded when the store is back"
-        )
+    if saved_when == "stored":
+        storage.wait_durable(key, store_wait_s)
     log.info(
         "episode %s (%s, %d steps) stored at %s",
         finished.episode_id,

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import Any
 
 import aiohttp
+
+from crowdteleop.teleop.messages import EpisodeReport
 
 log = logging.getLogger(__name__)
 
@@ -14,19 +15,22 @@ ATTEMPTS = 5
 FIRST_BACKOFF_S = 0.5
 
 
-async def report_episode(url: str, token: str | None, payload: dict[str, Any]) -> bool:
-    """POST `payload` to `url`, retrying with exponential backoff; False if it never landed.
+async def report_episode(url: str, token: str | None, report: EpisodeReport) -> bool:
+    """POST `report` to `url`, retrying with exponential backoff; False if it never landed.
 
     The report is idempotent on the coordinator's side (keyed by episode id), so a retry after
     a lost response never counts an episode twice.
     """
-    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    headers = {"Content-Type": "application/json"}
+    if token:
+        headers["Authorization"] = f"Bearer {token}"
+    body = report.model_dump_json()
     delay = FIRST_BACKOFF_S
     for attempt in range(1, ATTEMPTS + 1):
         try:
             async with (
                 aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=10)) as http,
-                http.post(url, json=payload, headers=headers) as response,
+                http.post(url, data=body, headers=headers) as response,
             ):
                 if response.status < 300:
                     return True

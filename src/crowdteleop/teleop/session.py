@@ -12,7 +12,7 @@ import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, assert_never
 
 import numpy as np
 from av import VideoFrame
@@ -27,6 +27,7 @@ from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.episode import (
     EpisodeTracker,
     FinishedEpisode,
+    episode_metadata,
     step_record,
     store_episode,
 )
@@ -36,6 +37,32 @@ from crowdteleop.vocab import Outcome
 log = logging.getLogger(__name__)
 
 HAPTIC_REPEAT_S = 0.25  # while a contact lasts, buzz again this often
+
+
+@dataclass(frozen=True)
+class ResetScene:
+    """End the running episode as ``reset`` and start a fresh scene."""
+
+
+@dataclass(frozen=True)
+class StopSession:
+    """End the running episode as ``reset`` and pause until `StartSession`."""
+
+
+@dataclass(frozen=True)
+class StartSession:
+    """Resume a stopped session with a fresh scene."""
+
+
+@dataclass(frozen=True)
+class EndEpisode:
+    """End the running episode with `outcome` (its driver left); the scene resets."""
+
+    outcome: Outcome
+
+
+SessionRequest = ResetScene | StopSession | StartSession | EndEpisode
+"""What peers may ask of the session between two steps (the tracker never changes in one)."""
 
 
 @dataclass(frozen=True)
@@ -87,7 +114,7 @@ class TeleopSession:
         self._yuv = YuvConverter()
         self._seed = config.seed
         self._last_image: np.ndarray | None = None
-        self._pending: list[str] = []
+        self._pending: list[SessionRequest] = []
         self._finished: list[FinishedEpisode] = []
         self.sim_errors = 0
         self.teleop: Teleoperator  # set in _build (sim thread)
@@ -107,25 +134,15 @@ class TeleopSession:
         sim = make_simulation(self.config.sim)
         self.teleop = Teleoperator(sim, self.config.control)
         self.teleop.reset(self._seed)
-        metadata = {
-            "session_id": self.config.session_id,
-            "worker_id": self.config.worker_id,
-            "task": self.config.sim.task,
-            "robot": self.config.sim.robot,
-            "controller": self.config.control.controller,
-            "action_mode": self.config.sim.action_mode,
-            "control_hz": self.config.sim.control_hz,
-            "camera": self.config.video.camera,
-            "sim_config": self.config.sim.model_dump(mode="json"),
-            "control_config": self.config.control.model_dump(mode="json"),
-            "model_xml": sim.mjcf_xml(),
-            "reset_seed": self._seed,
-            "env_args": {
-                "env_name": self.task.env_name,
-                "type": 1,
-                "env_kwargs": {"robots": [self.config.sim.robot], **self.task.env_kwargs},
-            },
-        }
+        metadata = episode_metadata(
+            self.config.sim,
+            self.config.control,
+            camera=self.config.video.camera,
+            model_xml=sim.mjcf_xml(),
+            reset_seed=self._seed,
+            session_id=self.config.session_id,
+            worker_id=self.config.worker_id,
+        )
         self.tracker = EpisodeTracker(
             control_dt=sim.control_dt,
             time_limit_s=self.config.episode_time_limit_s,
@@ -141,7 +158,9 @@ class TeleopSession:
         self.config = config
         self._close_storage()
         self.storage = config.recording.open_storage()
-        self.tracker.metadata.update(session_id=config.session_id, worker_id=config.worker_id)
+        self.tracker.metadata = self.tracker.metadata.model_copy(
+            update={"session_id": config.session_id, "worker_id": config.worker_id}
+        )
         self.tracker.recordings = config.recording.directory / "incoming"
 
     @property
@@ -152,17 +171,17 @@ class TeleopSession:
     # They only leave a note: the tracker changes between steps, never during one.
 
     def request_reset(self) -> None:
-        self._pending.append("reset")
+        self._pending.append(ResetScene())
 
     def request_stop(self) -> None:
-        self._pending.append("stop")
+        self._pending.append(StopSession())
 
     def request_start(self) -> None:
-        self._pending.append("start")
+        self._pending.append(StartSession())
 
     def request_end(self, outcome: Outcome) -> None:
         """End the running episode (the controlling device left); the scene resets."""
-        self._pending.append(outcome)
+        self._pending.append(EndEpisode(outcome))
 
     def pop_finished(self) -> list[FinishedEpisode]:
         finished, self._finished = self._finished, []
@@ -176,19 +195,23 @@ class TeleopSession:
     async def _apply_requests(self) -> None:
         needs_reset = False
         for request in self._pending:
-            if request == "stop":
-                self._end("reset", stop=True)
-            elif request == "start":
-                if self.tracker.state == "stopped":
-                    self.tracker.state = "ready"
-                    needs_reset = True
-            elif request == "reset":
-                if self.tracker.state != "stopped":
-                    self._end("reset")
-                    needs_reset = True
-            elif self.tracker.state == "running":  # disconnect
-                self._end(request)
-                needs_reset = True
+            match request:
+                case StopSession():
+                    self._end("reset", stop=True)
+                case StartSession():
+                    if self.tracker.state == "stopped":
+                        self.tracker.state = "ready"
+                        needs_reset = True
+                case ResetScene():
+                    if self.tracker.state != "stopped":
+                        self._end("reset")
+                        needs_reset = True
+                case EndEpisode(outcome):
+                    if self.tracker.state == "running":
+                        self._end(outcome)
+                        needs_reset = True
+                case _:
+                    assert_never(request)
         self._pending.clear()
         if needs_reset:
             await self._in_sim_thread(self._reset_scene)
@@ -203,14 +226,15 @@ class TeleopSession:
             return None
         command = self.board.command()
         raw = self.board.raw_command()
-        self.tracker.maybe_start(command.engaged)
+        driver = self.board.driver
+        self.tracker.maybe_start(command.engaged, driver.device if driver else None)
         try:
             return await self._in_sim_thread(self._step, command, raw, want_privileged)
         except Exception:  # a simulation failure ends the episode; the session lives on
             log.exception("simulation step failed")
             self.sim_errors += 1
             self._end("crash")
-            self._pending.append("reset")
+            self._pending.append(ResetScene())
             return None
 
     def _step(self, command: Any, raw: dict[str, Any], want_privileged: bool) -> TickResult:
@@ -254,13 +278,11 @@ class TeleopSession:
         episode's metadata: osc episodes re-simulate exactly only from a reset with it."""
         self._seed += 1
         self.teleop.reset(self._seed)
-        self.tracker.metadata["reset_seed"] = self._seed
+        self.tracker.metadata = self.tracker.metadata.model_copy(update={"reset_seed": self._seed})
         self.board.release_clutch()
 
     def _close_storage(self) -> None:
-        close = getattr(self.storage, "close", None)  # a spooled S3 store has an upload thread
-        if close is not None:
-            close()
+        self.storage.close()  # a spooled S3 store stops its upload thread
 
     async def store(self, finished: FinishedEpisode, telemetry: dict[str, Any]) -> str | None:
         """Finalize and store an episode's recording in a worker thread."""

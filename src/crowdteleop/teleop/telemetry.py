@@ -30,6 +30,7 @@ class SessionTelemetry:
     frames_published: int = 0
     bitrate_kbps: float = 0.0
     _fps_mark: tuple[float, int] = field(default_factory=lambda: (time.monotonic(), 0))
+    _bytes_mark: tuple[int, float] = field(default_factory=lambda: (0, time.monotonic()))
     fps: float = 0.0
 
     def frame_published(self) -> None:
@@ -41,6 +42,14 @@ class SessionTelemetry:
         if now - then >= 0.5:
             self.fps = (self.frames_published - count) / (now - then)
             self._fps_mark = (now, self.frames_published)
+
+    def update_bitrate(self, total_bytes_sent: int) -> None:
+        """The video senders' rate since the last call, from their running byte count."""
+        previous, then = self._bytes_mark
+        now = time.monotonic()
+        if now > then and total_bytes_sent >= previous:
+            self.bitrate_kbps = (total_bytes_sent - previous) * 8 / 1000 / (now - then)
+        self._bytes_mark = (total_bytes_sent, now)
 
     def snapshot(self, loop: LoopStats, peer_errors: Counter[str]) -> dict[str, Any]:
         errors = self.errors + peer_errors

@@ -1,0 +1,51 @@
+"""What every recorded episode says about how it was made: one model for its writers (the
+teleop server, the scripted rig) and its readers (the dataset tools).
+
+Stored as JSON in the episode file (``crowdteleop.recording.episode_file``); campaigns may add
+keys of their own (``campaign``, ``network_condition``, ``interface``...), kept as extras.
+Fields have defaults so files recorded before a field existed still read.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from crowdteleop.vocab import ActionMode, ControllerName
+
+DEFAULT_CONTROL_HZ = 20.0
+
+
+class EnvArgs(BaseModel):
+    """robomimic's ``env_args``: what rebuilds the scene in plain robosuite (type 1)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    env_name: str
+    type: int = 1
+    env_kwargs: dict[str, Any] = Field(default_factory=dict)
+
+
+class EpisodeMetadata(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    session_id: str | None = Field(None, description="none for episodes made outside sessions")
+    worker_id: str | None = None
+    task: str = "unknown"
+    robot: str = "Sawyer"
+    controller: ControllerName | None = None
+    action_mode: ActionMode | None = None
+    control_hz: float = Field(DEFAULT_CONTROL_HZ, gt=0)
+    camera: str = "frontview"
+    sim_config: dict[str, Any] = Field(default_factory=dict)
+    control_config: dict[str, Any] = Field(default_factory=dict)
+    model_xml: str = Field("", repr=False)
+    reset_seed: int | None = Field(None, description="the reset that began the episode")
+    env_args: EnvArgs | None = None
+    episode: int | None = Field(None, description="1-based number within its session")
+    interface: str | None = Field(None, description="the device the worker used, if known")
+
+    def to_record(self) -> dict[str, Any]:
+        """The JSON-ready dict the recorder stores (unset optional fields left out)."""
+        return self.model_dump(mode="json", exclude_none=True)

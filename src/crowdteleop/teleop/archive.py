@@ -1,0 +1,92 @@
+"""Finished episodes, from the control loop to durable storage, the worker and the coordinator.
+
+Storing runs in tasks of its own, off the loop: the worker hears `saved` only once the store
+confirmed the file, then the coordinator gets an `EpisodeReport` (it counts demonstrations).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import Any
+
+from crowdteleop.teleop.config import TeleopConfig
+from crowdteleop.teleop.episode import FinishedEpisode
+from crowdteleop.teleop.messages import EpisodeReport
+from crowdteleop.teleop.peering import PeerSet
+from crowdteleop.teleop.protocol import EpisodeEnded, EpisodeSaved
+from crowdteleop.teleop.report import report_episode
+from crowdteleop.teleop.session import TeleopSession
+from crowdteleop.teleop.telemetry import SessionTelemetry
+
+log = logging.getLogger(__name__)
+
+
+class EpisodeArchive:
+    """Owns the storing tasks; `close` waits for them."""
+
+    def __init__(self, peers: PeerSet, telemetry: SessionTelemetry) -> None:
+        self._peers = peers
+        self._telemetry = telemetry
+        self._tasks: set[asyncio.Task[None]] = set()
+        self.stored: list[str] = []
+
+    def episode_ended(
+        self,
+        session: TeleopSession,
+        finished: FinishedEpisode,
+        config: TeleopConfig,
+        telemetry: dict[str, Any],
+    ) -> None:
+        """Tell the peers at once; store and report in the background."""
+        self._peers.broadcast(
+            EpisodeEnded(
+                episode=finished.number,
+                outcome=finished.outcome,
+                steps=finished.steps,
+                successes=session.tracker.successes,
+            )
+        )
+        task = asyncio.create_task(self._store(session, finished, config, telemetry))
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    async def _store(
+        self,
+        session: TeleopSession,
+        finished: FinishedEpisode,
+        config: TeleopConfig,
+        telemetry: dict[str, Any],
+    ) -> None:
+        try:
+            uri = await session.store(finished, {"telemetry": telemetry})
+        except Exception:
+            log.exception("storing episode %s failed", finished.episode_id)
+            self._telemetry.errors["storage"] += 1
+            return
+        if uri is None:
+            return
+        self.stored.append(uri)
+        self._peers.broadcast(
+            EpisodeSaved(episode=finished.number, outcome=finished.outcome, uri=uri)
+        )
+        if config.report_url is None:
+            return
+        report = EpisodeReport(
+            session_id=config.session_id,
+            worker_id=config.worker_id,
+            episode=finished.number,
+            episode_id=finished.episode_id,
+            outcome=finished.outcome,
+            steps=finished.steps,
+            duration_s=finished.steps / config.sim.control_hz,
+            uri=uri,
+            telemetry=telemetry,
+            device=finished.device,
+        )
+        if not await report_episode(config.report_url, config.report_token, report):
+            self._telemetry.errors["report"] += 1
+
+    async def close(self) -> None:
+        if self._tasks:
+            await asyncio.gather(*self._tasks, return_exceptions=True)

@@ -1,0 +1,191 @@
+"""The session's connected clients: an accepted offer becomes a `Peer` whose data channels feed
+the dispatcher; a peer that leaves is closed and counted."""
+
+from __future__ import annotations
+
+import asyncio
+import secrets
+from collections import Counter
+from collections.abc import Callable, Iterator
+
+from aiortc import (
+    RTCConfiguration,
+    RTCDataChannel,
+    RTCIceServer,
+    RTCPeerConnection,
+    RTCRtpSender,
+    RTCRtpTransceiver,
+    RTCSessionDescription,
+)
+from pydantic import BaseModel
+
+from crowdteleop.teleop.config import LimitsConfig, VideoConfig
+from crowdteleop.teleop.guard import InboundGuard
+from crowdteleop.teleop.messages import OfferRequest
+from crowdteleop.teleop.peers import Peer
+from crowdteleop.teleop.video import FrameSource, SimVideoTrack
+
+CLIENT_CHANNELS = frozenset({"control", "events", "admin"})
+
+MessageHandler = Callable[[Peer, str, str | bytes], None]
+PeerCallback = Callable[[Peer], None]
+
+
+class PeerSet:
+    """Every peer of one session, from offer to departure.
+
+    ``on_message`` gets each message a client sends on ``control`` or ``events``;
+    ``on_events_open`` runs when a peer's events channel opens (the server says hello);
+    ``on_left`` runs once per peer that leaves (it may have been driving the arm).
+    """
+
+    def __init__(
+        self,
+        ice_servers: list[str],
+        limits: LimitsConfig,
+        video: VideoConfig,
+        frames: FrameSource,
+        on_message: MessageHandler,
+        on_events_open: PeerCallback,
+        on_left: PeerCallback,
+    ) -> None:
+        self._ice_servers = ice_servers
+        self._limits = limits
+        self._video = video
+        self._frames = frames
+        self._on_message = on_message
+        self._on_events_open = on_events_open
+        self._on_left = on_left
+        self._peers: dict[str, Peer] = {}
+        self._departed_errors: Counter[str] = Counter()
+
+    def __len__(self) -> int:
+        return len(self._peers)
+
+    def __iter__(self) -> Iterator[Peer]:
+        return iter(list(self._peers.values()))
+
+    @property
+    def full(self) -> bool:
+        return len(self._peers) >= self._limits.max_peers
+
+    def admins(self) -> list[Peer]:
+        return [peer for peer in self._peers.values() if peer.is_admin]
+
+    def broadcast(self, message: BaseModel) -> None:
+        for peer in self._peers.values():
+            peer.send(message)
+
+    def errors(self) -> Counter[str]:
+        """Refusals counted on every peer, those that left included."""
+        total = Counter(self._departed_errors)
+        for peer in self._peers.values():
+            total += peer.errors
+        return total
+
+    async def connect(self, offer: OfferRequest) -> tuple[RTCSessionDescription, str]:
+        """Answer `offer`; the new peer's id comes back with the answer."""
+        ice = [RTCIceServer(urls=url) for url in self._ice_servers]
+        pc = RTCPeerConnection(RTCConfiguration(iceServers=ice))
+        limits = self._limits
+        peer = Peer(
+            peer_id=secrets.token_hex(6),
+            role=offer.role,
+            pc=pc,
+            guard=InboundGuard(limits.max_message_bytes, limits.messages_per_second, limits.burst),
+        )
+        self._peers[peer.peer_id] = peer
+
+        @pc.on("datachannel")
+        def on_datachannel(channel: RTCDataChannel) -> None:
+            self._attach_channel(peer, channel)
+
+        @pc.on("connectionstatechange")
+        async def on_state() -> None:
+            if pc.connectionState in ("failed", "closed"):
+                await self.drop(peer)
+
+        try:
+            if offer.role != "phone" and "\nm=video " in offer.sdp:
+                # Made before the offer is applied, so the codec preference shapes the answer
+                # (aiortc negotiates codecs in setRemoteDescription).
+                peer.track = SimVideoTrack(self._frames)
+                self._prefer_codec(pc.addTransceiver(peer.track, direction="sendonly"))
+            sdp = without_mdns_candidates(offer.sdp)
+            await pc.setRemoteDescription(RTCSessionDescription(sdp, offer.type))
+            await pc.setLocalDescription(await pc.createAnswer())
+        except Exception:
+            await self.drop(peer)
+            raise
+        return pc.localDescription, peer.peer_id
+
+    async def drop(self, peer: Peer) -> None:
+        """Close a peer that left (idempotent)."""
+        if self._peers.pop(peer.peer_id, None) is None:
+            return
+        self._departed_errors += peer.errors
+        self._on_left(peer)
+        await peer.pc.close()
+
+    async def close(self) -> None:
+        peers, self._peers = list(self._peers.values()), {}
+        await asyncio.gather(*(peer.pc.close() for peer in peers))
+
+    async def video_bytes_sent(self) -> int:
+        """Bytes every video sender has put on the wire so far (for the bitrate telemetry)."""
+        total = 0
+        for peer in list(self._peers.values()):
+            if not peer.wants_video:
+                continue
+            for sender in peer.pc.getSenders():
+                if sender.track is None:
+                    continue
+                stats = await sender.getStats()
+                total += sum(
+                    getattr(s, "bytesSent", 0) for s in stats.values() if s.type == "outbound-rtp"
+                )
+        return total
+
+    def _prefer_codec(self, transceiver: RTCRtpTransceiver) -> None:
+        codecs = RTCRtpSender.getCapabilities("video").codecs
+        preferred = [c for c in codecs if c.mimeType == self._video.mime_type]
+        rtx = [c for c in codecs if c.mimeType == "video/rtx"]
+        transceiver.setCodecPreferences(preferred + rtx)
+
+    def _attach_channel(self, peer: Peer, channel: RTCDataChannel) -> None:
+        label = channel.label
+        if label not in CLIENT_CHANNELS or (label == "admin" and not peer.is_admin):
+            peer.guard.refuse("channel")
+            channel.close()
+            return
+        peer.channels[label] = channel
+
+        @channel.on("message")
+        def on_message(raw: str | bytes) -> None:
+            if label == "admin":
+                peer.guard.refuse("channel")
+                peer.send_error("channel", "the admin channel is server-to-client only", label)
+                return
+            self._on_message(peer, label, raw)
+
+        if label == "events":
+
+            @channel.on("open")
+            def on_open() -> None:
+                self._on_events_open(peer)
+
+            if channel.readyState == "open":
+                self._on_events_open(peer)
+
+
+def without_mdns_candidates(sdp: str) -> str:
+    """Drop the browser's mDNS (``*.local``) host candidates from an offer.
+
+    Browsers hide local addresses behind mDNS names; aioice resolves each one before the answer
+    is made, which costs about a second (and fails where multicast does not pass). Without them
+    the connection still forms: the browser checks our candidates, and its address is learnt from
+    those checks (a peer-reflexive candidate), as the ICE standard provides.
+    """
+    lines = sdp.split("\r\n")
+    kept = [line for line in lines if not (line.startswith("a=candidate:") and ".local " in line)]
+    return "\r\n".join(kept)
