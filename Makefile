@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 PYTEST_ARGS ?=
 
-.PHONY: run test lint format bench clean system-deps
+.PHONY: run test lint format bench screenshots clean system-deps
 
 ## Start the coordination server on http://localhost:8000 (prints the URLs to open).
 run: $(STAMP)
@@ -16,10 +16,13 @@ run: $(STAMP)
 test: $(STAMP)
 	bash scripts/system-deps.sh test  # also starts PostgreSQL if it is down
 	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/mypy  # src/, as configured in pyproject.toml (strict on the seams)
+	CROWDTELEOP_PYTHON=$(PY) node --test tests/web/  # the pages' JS: schema validator, protocol, latency
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/mypy
 	$(VENV)/bin/ruff format --check src tests benchmarks
 
 format: $(STAMP)
@@ -28,6 +31,10 @@ format: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/sim.py
+
+## Refresh the README's pictures (docs/screenshots/) with the browser end-to-end test.
+screenshots: $(STAMP)
+	CROWDTELEOP_SCREENSHOTS=docs/screenshots $(PY) -m pytest -q tests/e2e/test_web_e2e.py
 
 system-deps:
 	bash scripts/system-deps.sh test

@@ -16,6 +16,8 @@ if [ "$profile" = "test" ]; then
     postgresql   # the coordination server's database tests run against a real PostgreSQL
     chromium     # the web pages' end-to-end tests (Playwright drives /usr/bin/chromium)
   )
+  # The pages' JS unit tests run on node's own test runner; any node >= 18 will do.
+  command -v node >/dev/null || packages+=(nodejs)
 fi
 
 # The database tests need PostgreSQL listening on 127.0.0.1:5432 (trust auth, database test).

@@ -175,7 +175,8 @@ def stats(
     bins: Annotated[int, typer.Option(help="histogram bins")] = 10,
 ) -> None:
     """Counts, hours, success rates, completion times and KS tests, as the paper's tables."""
-    from crowdteleop.dataset.build import dataset_demos, episode_files, read_inputs, summarize
+    from crowdteleop.dataset.build import episode_files, read_inputs, summarize
+    from crowdteleop.dataset.files import dataset_demos
     from crowdteleop.dataset.stats import markdown, write_report
 
     with _clear_errors():

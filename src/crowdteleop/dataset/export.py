@@ -22,8 +22,9 @@ from typing import Any
 
 import h5py
 import numpy as np
+import numpy.typing as npt
 
-from crowdteleop.dataset.build import DatasetError, open_dataset
+from crowdteleop.dataset.files import DatasetError, open_dataset
 from crowdteleop.dataset.replay import Demo, ReplayChecker, load_demo
 
 Progress = Callable[[int, int], None]
@@ -32,8 +33,8 @@ LOW_DIM = {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_closed": 1
 
 @dataclass(frozen=True)
 class Observations:
-    images: dict[str, np.ndarray]  # camera -> (N, H, W, 3) uint8
-    low_dim: dict[str, np.ndarray]  # key -> (N, D) float64
+    images: dict[str, npt.NDArray[np.float64]]  # camera -> (N, H, W, 3) uint8
+    low_dim: dict[str, npt.NDArray[np.float64]]  # key -> (N, D) float64
 
 
 def render_observations(
@@ -46,8 +47,10 @@ def render_observations(
 ) -> Observations:
     """Set each recorded state, render every camera and read the robot's proprioception."""
     sim = checker.simulation(demo)
-    images: dict[str, list[np.ndarray]] = {camera: [] for camera in cameras}
-    low: dict[str, list[np.ndarray]] = {key: [] for key in (*LOW_DIM, "robot0_joint_pos")}
+    images: dict[str, list[npt.NDArray[np.float64]]] = {camera: [] for camera in cameras}
+    low: dict[str, list[npt.NDArray[np.float64]]] = {
+        key: [] for key in (*LOW_DIM, "robot0_joint_pos")
+    }
     for state in demo.states:
         sim.set_state(state)
         for camera in cameras:
@@ -265,7 +268,7 @@ def _write_parquet(pq: Any, table: Any, path: Path) -> None:
     pq.write_table(table, path)
 
 
-def _stats(array: np.ndarray) -> dict[str, list[float] | list[int]]:
+def _stats(array: npt.NDArray[np.float64]) -> dict[str, list[float] | list[int]]:
     return {
         "min": array.min(axis=0).tolist(),
         "max": array.max(axis=0).tolist(),
@@ -285,7 +288,7 @@ class _RunningImageStats:
         self.low = np.ones(3)
         self.high = np.zeros(3)
 
-    def add(self, images: np.ndarray) -> None:
+    def add(self, images: npt.NDArray[np.float64]) -> None:
         pixels = images.reshape(-1, 3).astype(np.float64) / 255.0
         self.n += len(pixels)
         self.total += pixels.sum(axis=0)
@@ -297,7 +300,7 @@ class _RunningImageStats:
         mean = self.total / max(self.n, 1)
         std = np.sqrt(np.maximum(self.squares / max(self.n, 1) - mean**2, 0.0))
 
-        def shaped(v: np.ndarray) -> list[list[list[float]]]:
+        def shaped(v: npt.NDArray[np.float64]) -> list[list[list[float]]]:
             return [[[float(x)]] for x in v]
 
         return {

@@ -19,8 +19,9 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
-from crowdteleop.dataset.build import DatasetError, open_dataset
+from crowdteleop.dataset.files import DatasetError, open_dataset
 from crowdteleop.recording.episode_file import CorruptEpisodeError, Episode, read_episode
 from crowdteleop.recording.metadata import EpisodeMetadata
 
@@ -30,8 +31,8 @@ class Demo:
     """What replaying one demonstration needs."""
 
     name: str
-    states: np.ndarray
-    actions: np.ndarray
+    states: npt.NDArray[np.float64]
+    actions: npt.NDArray[np.float64]
     model_xml: str
     metadata: dict[str, Any]
 

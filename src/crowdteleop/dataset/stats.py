@@ -17,8 +17,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
-from crowdteleop.dataset.build import DemoSummary
+from crowdteleop.dataset.files import DemoSummary
 
 GROUPINGS = {"interface": "interface", "network condition": "network", "worker": "worker"}
 
@@ -42,7 +43,9 @@ class KsCell:
     p_value: float
 
 
-def group_stats(name: str, demos: Sequence[DemoSummary], edges: np.ndarray) -> GroupStats:
+def group_stats(
+    name: str, demos: Sequence[DemoSummary], edges: npt.NDArray[np.float64]
+) -> GroupStats:
     times = np.array([d.completion_s for d in demos if d.outcome == "success"])
     counts, _ = np.histogram(times, bins=edges)
     return GroupStats(
@@ -98,7 +101,7 @@ def compute_stats(demos: Sequence[DemoSummary], bins: int = 10) -> dict[str, Any
     return report
 
 
-def _edges(times: Sequence[float], bins: int) -> np.ndarray:
+def _edges(times: Sequence[float], bins: int) -> npt.NDArray[np.float64]:
     if not times:
         return np.linspace(0.0, 1.0, bins + 1)
     low, high = min(times), max(times)

@@ -15,8 +15,9 @@ cheap on the control loop, which only validates a step's numbers and keeps it: p
 and checksums happen when the buffer is flushed, by a flusher thread once ``flush_interval_s``
 has passed (so neither they nor the fsync stall the control loop): a crash loses at most that.
 
-A live recorder holds ``flock`` on its log, so ``recover_orphans`` never touches an episode
-that is still being recorded, and the lock dies with a killed process. The finished episode
+A live recorder holds ``flock`` on its log, so ``recover_orphans`` (``wal_recovery``) never
+touches an episode that is still being recorded, and the lock dies with a killed process.
+``wal_reader`` reads a log back. The finished episode
 (``<episode_id>.hdf5``) is laid out as one robomimic demo (``data/demo_0``); see
 ``docs/recording.md``. It is written under a temporary name and renamed, then the log is
 removed: a crash at any point leaves either the log or the finished file (or both, which
@@ -27,16 +28,12 @@ from __future__ import annotations
 
 import dataclasses
 import fcntl
-import json
 import logging
 import math
 import os
 import re
-import struct
 import threading
 import time
-import zlib
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -45,28 +42,22 @@ import numpy as np
 from crowdteleop.errors import InvalidActionError, InvalidStateError
 from crowdteleop.recording.episode_file import (
     EPISODE_SUFFIX,
-    CorruptEpisodeError,
     InvalidRecordError,
-    PartialEpisode,
     RecordingError,
     StepRecord,
-    is_readable,
     split_metadata,
     to_json,
     write_episode,
 )
 from crowdteleop.recording.storage import fsync_directory
-from crowdteleop.recording.wal_codec import FRAME, decode_step, encode_steps, frame
+from crowdteleop.recording.wal_codec import WAL_MAGIC, WAL_SUFFIX, encode_steps, frame
+from crowdteleop.recording.wal_reader import read_partial
 from crowdteleop.vocab import OUTCOMES, Outcome
 
 log = logging.getLogger(__name__)
 
-WAL_MAGIC = b"CTWAL02\n"
-WAL_MAGIC_V1 = b"CTWAL01\n"  # read, never written: steps only as "S" records
-WAL_SUFFIX = ".wal"
 
 _F8 = np.dtype("<f8")
-_MAX_PAYLOAD = 64 * 1024 * 1024  # larger length fields are garbage, not records
 _EPISODE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")
 
 
@@ -353,88 +344,6 @@ class EpisodeRecorder:
         return state, action
 
 
-def read_partial(path: Path) -> PartialEpisode:
-    """Everything a write-ahead log holds up to its first torn or damaged record."""
-    path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError as error:
-        raise CorruptEpisodeError(f"no write-ahead log at {path}") from error
-    return _parse_wal(data, path)
-
-
-def recover_orphans(directory: Path) -> list[Path]:
-    """Finalize, with outcome "crash", every log no live recorder holds; returns the files.
-
-    A log whose episode file already exists (a crash between the file's rename and the log's
-    removal) is simply removed. A log with a damaged header is renamed ``*.wal.corrupt`` and
-    kept for a person to look at. Stale temporary files are removed.
-    """
-    directory = Path(directory)
-    if not directory.is_dir():
-        return []
-    recovered = []
-    for wal in sorted(directory.glob(f"*{WAL_SUFFIX}")):
-        try:
-            path = _recover_one(wal)
-        except OSError as error:  # e.g. a full disk: the log stays for the next attempt
-            log.error("could not recover %s: %s", wal, error)
-            continue
-        if path is not None:
-            recovered.append(path)
-    for tmp in directory.glob(f".*{EPISODE_SUFFIX}.tmp"):
-        if not (directory / (tmp.name[1 : -len(EPISODE_SUFFIX) - 4] + WAL_SUFFIX)).exists():
-            tmp.unlink(missing_ok=True)  # its log is gone: a leftover of a finished episode
-    for tmp in directory.glob(f".*{WAL_SUFFIX}.*.tmp"):
-        _remove_if_unlocked(tmp)  # a log that never got its name holds no steps
-    return recovered
-
-
-def _recover_one(wal: Path) -> Path | None:
-    try:
-        fd = os.open(wal, os.O_RDONLY | os.O_CLOEXEC)
-    except FileNotFoundError:
-        return None
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            return None  # a live recorder holds it
-        if os.fstat(fd).st_nlink == 0:
-            return None  # finalized while we waited for the lock
-        with os.fdopen(os.dup(fd), "rb") as file:
-            data = file.read()
-        try:
-            partial = _parse_wal(data, wal)
-        except CorruptEpisodeError as error:
-            log.warning("cannot recover %s (%s); kept as %s.corrupt", wal, error, wal.name)
-            wal.rename(wal.with_name(wal.name + ".corrupt"))
-            return None
-        path = wal.with_name(partial.episode_id + EPISODE_SUFFIX)
-        if not is_readable(path):
-            extra = {"ignored_tail_bytes": partial.ignored_tail_bytes}
-            write_episode(path, partial, "crash", extra, recovered=True)
-        wal.unlink()
-        fsync_directory(wal.parent)
-        return path
-    finally:
-        os.close(fd)
-
-
-def _remove_if_unlocked(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
-    except FileNotFoundError:
-        return
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        path.unlink(missing_ok=True)
-    except BlockingIOError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def _create_wal(path: Path, head: bytes) -> int:
     """A locked, fsync'd log with its header, under its final name only once complete."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}-{threading.get_ident()}.tmp")
@@ -457,72 +366,6 @@ def _create_wal(path: Path, head: bytes) -> int:
     tmp.unlink()
     fsync_directory(path.parent)
     return fd
-
-
-def _parse_wal(data: bytes, path: Path) -> PartialEpisode:
-    if not data.startswith((WAL_MAGIC, WAL_MAGIC_V1)):
-        raise CorruptEpisodeError(f"{path} is not a crowdteleop write-ahead log")
-    records = _records(data)
-    try:
-        end, payload = next(records)
-        header = _decode_header(payload)
-    except (StopIteration, ValueError, KeyError, TypeError) as error:
-        raise CorruptEpisodeError(
-            f"{path}: the log's header is damaged, nothing is recoverable"
-        ) from error
-    steps: list[StepRecord] = []
-    for record_end, payload in records:
-        try:
-            steps.append(decode_step(payload, len(steps)))
-        except (ValueError, KeyError, TypeError, IndexError, struct.error):
-            break  # checksum fine but not our step: a bug or a foreign tail; stop trusting
-        end = record_end
-    metadata, model_xml, env_args = split_metadata(header["metadata"])
-    return PartialEpisode(
-        episode_id=header["episode_id"],
-        metadata=metadata,
-        model_xml=model_xml,
-        env_args=env_args,
-        created_at=header["created_at"],
-        states=_stack([step.state for step in steps]),
-        actions=_stack([step.action for step in steps]),
-        server_time=np.array([step.server_time for step in steps], dtype=float),
-        step_duration_s=np.array([step.step_duration_s for step in steps], dtype=float),
-        rewards=np.array([step.reward for step in steps], dtype=float),
-        success=np.array([step.success for step in steps], dtype=bool),
-        commands=[step.command for step in steps],
-        contacts=[step.contacts for step in steps],
-        ignored_tail_bytes=len(data) - end,
-    )
-
-
-def _records(data: bytes) -> Iterator[tuple[int, bytes]]:
-    """(end offset, payload) of each whole record whose checksum holds, up to the first not."""
-    offset = len(WAL_MAGIC)
-    while offset + FRAME.size <= len(data):
-        length, crc = FRAME.unpack_from(data, offset)
-        end = offset + FRAME.size + length
-        if length > _MAX_PAYLOAD or end > len(data):
-            return  # torn: the record was being written
-        payload = data[offset + FRAME.size : end]
-        if zlib.crc32(payload) != crc:
-            return  # damaged: nothing after it can be trusted
-        yield end, payload
-        offset = end
-
-
-def _decode_header(payload: bytes) -> dict[str, Any]:
-    if payload[:1] != b"H":
-        raise ValueError("the first record is not a header")
-    header = json.loads(payload[1:])
-    if not isinstance(header["episode_id"], str) or not isinstance(header["metadata"], dict):
-        raise ValueError("header without episode id or metadata")
-    float(header["created_at"])
-    return header
-
-
-def _stack(rows: list[np.ndarray]) -> np.ndarray:
-    return np.stack(rows) if rows else np.zeros((0, 0))
 
 
 def _finite_vector(value: Any, name: str, error: type[ValueError]) -> np.ndarray:

@@ -28,6 +28,9 @@ from crowdteleop.recording.episode_file import InvalidRecordError, StepRecord, t
 
 log = logging.getLogger(__name__)
 
+WAL_MAGIC = b"CTWAL02\n"
+WAL_MAGIC_V1 = b"CTWAL01\n"  # read, never written: steps only as "S" records
+WAL_SUFFIX = ".wal"
 FRAME = struct.Struct("<II")  # payload length, CRC-32 of payload
 _STEP = struct.Struct("<qdddBII")  # index, server_time, step_duration_s, reward, success, S, A
 _COMPACT = struct.Struct("<cqdddBIIBqd3d4d?dB7sHI")

@@ -17,7 +17,7 @@ from typing import Any
 from aiohttp import web
 from pydantic import ValidationError
 
-from crowdteleop.recording.wal import recover_orphans
+from crowdteleop.recording.wal_recovery import recover_orphans
 from crowdteleop.teleop.archive import EpisodeArchive
 from crowdteleop.teleop.assign import assigned_config
 from crowdteleop.teleop.auth import bearer_matches, token_matches
