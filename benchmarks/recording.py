@@ -25,7 +25,8 @@ from rich.console import Console
 from rich.table import Table
 
 from crowdteleop.recording.episode_file import StepRecord, read_episode
-from crowdteleop.recording.wal import EpisodeRecorder, read_partial
+from crowdteleop.recording.wal import EpisodeRecorder
+from crowdteleop.recording.wal_reader import read_partial
 
 app = typer.Typer(add_completion=False)
 STATE_SIZE = 71

@@ -43,7 +43,7 @@ def test_the_bot_command_completes_an_episode_through_a_teleop_server(tmp_path):
     import subprocess
     import sys
 
-    from tests.teleop_process import ADMIN_TOKEN, TOKEN, teleop_server
+    from tests.fixtures.teleop_process import ADMIN_TOKEN, TOKEN, teleop_server
 
     with teleop_server(tmp_path) as server:
         result = subprocess.run(

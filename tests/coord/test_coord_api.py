@@ -6,15 +6,7 @@ import time
 
 import pytest
 
-from tests.coord_fixtures import (  # noqa: F401
-    ADMIN,
-    Api,
-    FakeLauncher,
-    coord_config,
-    database_url,
-    in_process_app,
-    postgres_database,
-)
+from tests.fixtures.coord import Api, FakeLauncher, coord_config, in_process_app
 
 # starlette warns that its TestClient will move from httpx to httpx2; nothing to do here.
 pytestmark = pytest.mark.filterwarnings("ignore:Using `httpx`")
@@ -134,7 +126,7 @@ def test_workers_cannot_see_or_control_each_others_sessions(client):
     assert api.session(alice, sid)["state"] != "ended", "nothing bob did touched it"
 
 
-def test_capacity_queues_fifo_with_eta_and_leaving_admits_the_next(tmp_path, database_url):  # noqa: F811
+def test_capacity_queues_fifo_with_eta_and_leaving_admits_the_next(tmp_path, database_url):
     launcher = FakeLauncher()
     config = coord_config(tmp_path, database_url, capacity=1)
     with in_process_app(config, launcher) as client:
@@ -217,7 +209,7 @@ def test_failing_launches_end_with_error_and_do_not_hold_the_slot(tmp_path):
         assert api.admin("overview")["teleop_servers"] == []
 
 
-def test_episode_reports_are_idempotent_and_complete_the_session(tmp_path, database_url):  # noqa: F811
+def test_episode_reports_are_idempotent_and_complete_the_session(tmp_path, database_url):
     launcher = FakeLauncher()
     with in_process_app(coord_config(tmp_path, database_url), launcher) as client:
         api = Api(client)

@@ -14,7 +14,6 @@ from crowdteleop.coord.campaign import CampaignConfig
 from crowdteleop.coord.db import make_engine, migrate, sync_url
 from crowdteleop.coord.store import Store
 from crowdteleop.coord.tables import Base, Episode, Session
-from tests.coord_fixtures import database_url, postgres_database  # noqa: F401
 
 
 def _run(coroutine):
@@ -64,7 +63,7 @@ def _episode(eid: str, sid: str, outcome: str = "success") -> Episode:
     )
 
 
-def test_migrations_reach_the_models_and_run_twice(database_url):  # noqa: F811
+def test_migrations_reach_the_models_and_run_twice(database_url):
     _run(migrate(database_url))
     _run(migrate(database_url))  # a second start finds nothing to do
     engine = create_engine(sync_url(database_url))
@@ -78,7 +77,7 @@ def test_migrations_reach_the_models_and_run_twice(database_url):  # noqa: F811
     assert {"workers", "sessions", "episodes", "events", "pairing_codes"} <= tables
 
 
-def test_rejoining_with_the_same_external_id_is_the_same_worker(database_url):  # noqa: F811
+def test_rejoining_with_the_same_external_id_is_the_same_worker(database_url):
     async def scenario():
         store = await _store(database_url)
         try:
@@ -104,7 +103,7 @@ def test_rejoining_with_the_same_external_id_is_the_same_worker(database_url):  
     assert nobody is None
 
 
-def test_episode_reports_count_once(database_url):  # noqa: F811
+def test_episode_reports_count_once(database_url):
     async def scenario():
         store = await _store(database_url)
         try:
@@ -129,7 +128,7 @@ def test_episode_reports_count_once(database_url):  # noqa: F811
     assert kinds.count("episode") == 3 and kinds[0] == "queued"
 
 
-def test_pairing_codes_are_single_use_and_expire(database_url):  # noqa: F811
+def test_pairing_codes_are_single_use_and_expire(database_url):
     async def scenario():
         store = await _store(database_url)
         try:
@@ -155,7 +154,7 @@ def test_pairing_codes_are_single_use_and_expire(database_url):  # noqa: F811
     assert phone is not None and phone.id == "s_0000000000000002"
 
 
-def test_live_sessions_keep_queue_order_and_updates_respect_state(database_url):  # noqa: F811
+def test_live_sessions_keep_queue_order_and_updates_respect_state(database_url):
     async def scenario():
         store = await _store(database_url)
         try:

@@ -5,7 +5,6 @@ completing the session), and no process left behind."""
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import time
 from pathlib import Path
@@ -16,59 +15,11 @@ from aiortc import RTCConfiguration, RTCPeerConnection, RTCSessionDescription
 
 from crowdteleop.client.bot import Bot
 from crowdteleop.client.connection import TeleopClient
-from tests.coord_fixtures import ADMIN, coord_server, pid_alive
+from tests.fixtures.coord import ADMIN, Worker, auth, coord_server, pid_alive
 
 pytestmark = pytest.mark.slow
 
 ADMIN_HEADERS = {"Authorization": f"Bearer {ADMIN}"}
-
-
-def auth(token: str) -> dict[str, str]:
-    return {"Authorization": f"Bearer {token}"}
-
-
-class Worker:
-    """A worker's page: joins, asks for a session, heart-beats while `beating`."""
-
-    def __init__(self, http: httpx.AsyncClient, params: dict[str, str]) -> None:
-        self.http, self.params = http, params
-        self.token = self.sid = ""
-        self.beating = True
-        self.view: dict = {}
-        self._task: asyncio.Task | None = None
-
-    async def start(self) -> dict:
-        joined = (await self.http.post("/api/join", json={"params": self.params})).json()
-        self.token = joined["worker_token"]
-        response = await self.http.post("/api/sessions", headers=auth(self.token))
-        assert response.status_code == 200, response.text
-        self.view = response.json()
-        self.sid = self.view["session_id"]
-        self._task = asyncio.create_task(self._beat())
-        return self.view
-
-    async def _beat(self) -> None:
-        while True:
-            if self.beating:
-                path = f"/api/sessions/{self.sid}/heartbeat"
-                self.view = (await self.http.post(path, headers=auth(self.token))).json()
-            else:
-                path = f"/api/sessions/{self.sid}"
-                self.view = (await self.http.get(path, headers=auth(self.token))).json()
-            await asyncio.sleep(0.5)
-
-    async def until(self, state: str, timeout: float) -> dict:
-        deadline = time.monotonic() + timeout
-        while self.view.get("state") != state:
-            assert time.monotonic() < deadline, f"{self.sid} never {state}: {self.view}"
-            await asyncio.sleep(0.2)
-        return self.view
-
-    async def stop(self) -> None:
-        if self._task:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
 
 
 async def hello_through(http: httpx.AsyncClient, path: str, headers: dict) -> dict:

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from schemathesis import GenerationMode
 
 from crowdteleop.coord.app import create_app
-from tests.coord_fixtures import ADMIN, FakeLauncher, coord_config
+from tests.fixtures.coord import ADMIN, FakeLauncher, coord_config
 
 pytestmark = pytest.mark.slow
 

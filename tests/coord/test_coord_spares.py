@@ -10,8 +10,7 @@ import pytest
 
 from crowdteleop.client.bot import Bot
 from crowdteleop.client.connection import TeleopClient
-from tests.coord_fixtures import ADMIN, coord_server
-from tests.test_coord_flow import Worker
+from tests.fixtures.coord import ADMIN, Worker, coord_server
 
 pytestmark = pytest.mark.slow
 ADMIN_HEADERS = {"Authorization": f"Bearer {ADMIN}"}

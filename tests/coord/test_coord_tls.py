@@ -10,7 +10,7 @@ import httpx
 from cryptography import x509
 
 from crowdteleop.coord.tls import self_signed
-from tests.coord_fixtures import coord_server
+from tests.fixtures.coord import coord_server
 
 
 def test_the_self_signed_certificate_is_made_once_and_remade_for_new_names(tmp_path):

@@ -14,9 +14,10 @@ import pytest
 from typer.testing import CliRunner
 
 from crowdteleop.cli import app
-from crowdteleop.dataset.build import DatasetError, build_dataset, dataset_demos
+from crowdteleop.dataset.build import build_dataset
+from crowdteleop.dataset.files import DatasetError, dataset_demos
 from crowdteleop.dataset.scripted import record_scripted_episode, scripted_rig
-from tests.data_fixtures import record_lift_episodes
+from tests.fixtures.episodes import record_lift_episodes
 
 runner = CliRunner()
 N_SUCCESS = 6

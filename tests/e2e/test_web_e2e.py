@@ -14,9 +14,7 @@ import pytest
 
 from crowdteleop.client.bot import Bot
 from crowdteleop.client.connection import TeleopClient
-from tests.coord_fixtures import ADMIN, coord_server
-from tests.web_browser import (
-    DOCS_SCREENSHOTS,
+from tests.fixtures.browser import (
     browser_context,
     centre,
     require_chromium,
@@ -24,6 +22,7 @@ from tests.web_browser import (
     video_fingerprint,
     wait_js,
 )
+from tests.fixtures.coord import ADMIN, coord_server
 
 pytestmark = pytest.mark.slow
 
@@ -104,7 +103,7 @@ def _overview(url: str) -> dict:
     return httpx.get(f"{url}/api/admin/overview", headers=headers, timeout=10).json()
 
 
-def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path):
+def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path, screenshots):
     require_chromium()
     from playwright.async_api import async_playwright
 
@@ -138,8 +137,7 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path):
                 results["picture_change"] = float(
                     np.abs(np.array(await video_fingerprint(page)) - picture).mean()
                 )
-                DOCS_SCREENSHOTS.mkdir(parents=True, exist_ok=True)
-                await page.screenshot(path=str(DOCS_SCREENSHOTS / "teleop-page.png"))
+                await page.screenshot(path=str(screenshots / "teleop-page.png"))
 
                 # 3. The phone pairs with the code the page shows and moves the arm.
                 code = await wait_js(
@@ -184,7 +182,7 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path):
                 results["driver"] = await page.evaluate(
                     "crowdteleop.connection.state.status.controlling_device"
                 )
-                await phone.screenshot(path=str(DOCS_SCREENSHOTS / "phone-page.png"))
+                await phone.screenshot(path=str(screenshots / "phone-page.png"))
 
                 # 4. With capacity 1, a second worker waits in line.
                 waiting = await _join(second_desktop, coord.url, SECOND_JOIN)
@@ -205,7 +203,7 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path):
                     " && document.querySelectorAll('#queue tr').length > 1"
                 )
                 results["admin_sessions"] = await admin_page.inner_text("#sessions")
-                await admin_page.screenshot(path=str(DOCS_SCREENSHOTS / "admin-page.png"))
+                await admin_page.screenshot(path=str(screenshots / "admin-page.png"))
                 await admin_page.close()
 
                 # 5. A scripted operator completes the task through the page's data channel;

@@ -38,9 +38,11 @@ from crowdteleop.recording.storage import (
     LocalDirectoryStorage,
     ObjectNotFoundError,
 )
-from crowdteleop.recording.wal import EpisodeRecorder, read_partial, recover_orphans
+from crowdteleop.recording.wal import EpisodeRecorder
+from crowdteleop.recording.wal_reader import read_partial
+from crowdteleop.recording.wal_recovery import recover_orphans
 from crowdteleop.vocab import OUTCOMES
-from tests import _recording_child as child
+from tests.fixtures import recording_child as child
 
 METADATA = {
     "task": "lift",
@@ -306,7 +308,7 @@ def test_kill_9_keeps_every_step_up_to_the_last_reported_flush(tmp_path, flushes
         [sys.executable, str(Path(child.__file__)), str(tmp_path), "killed"],
         stdout=subprocess.PIPE,
         text=True,
-        cwd=Path(__file__).parent.parent,
+        cwd=Path(__file__).resolve().parents[2],
     )
     try:
         assert process.stdout is not None

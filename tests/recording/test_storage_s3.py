@@ -11,20 +11,19 @@ from typer.testing import CliRunner
 
 from crowdteleop.cli import app
 from crowdteleop.recording.episode_file import read_episode
-from crowdteleop.recording.s3 import S3Storage, StorageAccessError, StorageUnavailableError
+from crowdteleop.recording.s3 import S3Storage, StorageAccessError
 from crowdteleop.recording.spool import SpooledStorage
-from crowdteleop.recording.storage import KeyExistsError, LocalDirectoryStorage, file_sha256
+from crowdteleop.recording.storage import (
+    KeyExistsError,
+    LocalDirectoryStorage,
+    StorageUnavailableError,
+    file_sha256,
+)
 from crowdteleop.recording.stores import StorageConfig
 from crowdteleop.teleop.config import RecordingConfig
 from crowdteleop.teleop.episode import FinishedEpisode, store_episode
-from tests.data_fixtures import (
-    BUCKET,
-    KEYS,
-    PEOPLE,
-    moto_s3,
-    moto_with_credentials,
-    record_lift_episodes,
-)
+from tests.fixtures.episodes import PEOPLE, record_lift_episodes
+from tests.fixtures.s3 import BUCKET, KEYS, moto_s3, moto_with_credentials
 
 
 def _finished(episode, number):

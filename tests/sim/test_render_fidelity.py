@@ -32,7 +32,7 @@ from crowdteleop.sim.fastrender.compositor import PARK_AFTER_FRAMES, may_show
 from crowdteleop.sim.fastrender.layers import MOVING
 from crowdteleop.sim.fastrender.textures import textures_used
 from crowdteleop.sim.rendering import CameraRenderer
-from tests.helpers import arm_motion
+from tests.fixtures.motion import arm_motion
 
 TASKS = ["lift", "pick-place-can", "nut-assembly-round"]
 MAD_LIMIT = {(320, 240): 1.0, (480, 360): 0.8}

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from crowdteleop.sim import SimConfig, make_simulation
-from tests.helpers import arm_motion
+from tests.fixtures.motion import arm_motion
 
 
 @pytest.mark.parametrize("robot", ["Panda", "UR5e", "IIWA"])

@@ -9,7 +9,7 @@ import pytest
 from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.sim.interface import Simulation
 from crowdteleop.tasks import TASKS
-from tests.helpers import arm_motion
+from tests.fixtures.motion import arm_motion
 
 ALL_TASKS = list(TASKS)
 

@@ -11,9 +11,9 @@ import numpy as np
 from crowdteleop.client.bot import Bot
 from crowdteleop.client.connection import TeleopClient
 from crowdteleop.recording.episode_file import read_episode
-from crowdteleop.recording.wal import read_partial
+from crowdteleop.recording.wal_reader import read_partial
 from crowdteleop.sim import SimConfig, make_simulation
-from tests.teleop_process import ADMIN_TOKEN, TOKEN, run, teleop_server
+from tests.fixtures.teleop_process import ADMIN_TOKEN, TOKEN, run, teleop_server
 
 FLUSH_S = 0.2
 CONTROL_DT = 0.05

@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from crowdteleop.client.connection import TeleopClient
-from tests.teleop_process import ADMIN_TOKEN, TOKEN, ServerProcess, teleop_server
+from tests.fixtures.teleop_process import ADMIN_TOKEN, TOKEN, ServerProcess, teleop_server
 
 FUZZ_MESSAGES = 10_500
 KNOWN_CODES = {

@@ -23,11 +23,11 @@ from pathlib import Path
 import pytest
 
 from crowdteleop.coord.launcher import teleop_server_argv
-from tests.teleop_process import teleop_config
+from tests.fixtures import link_client
+from tests.fixtures.teleop_process import ADMIN_TOKEN, TOKEN, teleop_config
 
 pytestmark = pytest.mark.slow
 
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "teleop.py"
 RATE = "500kbit"
 
 
@@ -80,9 +80,7 @@ def shaped_link():
 def test_vp8_adapts_to_a_500_kbps_link_without_a_standing_queue(tmp_path, shaped_link):
     server_ns, client_ns = shaped_link
     config_path = tmp_path / "teleop.json"
-    config = teleop_config(
-        tmp_path / "episodes", token="bench-token-1", admin_token="bench-admin-1"
-    )
+    config = teleop_config(tmp_path / "episodes")
     config_path.write_text(json.dumps(config))
     server = subprocess.Popen(
         [
@@ -107,10 +105,10 @@ def test_vp8_adapts_to_a_500_kbps_link_without_a_standing_queue(tmp_path, shaped
                 "exec",
                 client_ns,
                 sys.executable,
-                str(BENCH),
-                "--client",
+                str(Path(link_client.__file__)),
                 "http://10.77.0.1:8765",
-                "--decode",
+                TOKEN,
+                ADMIN_TOKEN,
                 "--warmup",
                 "3",
                 "--seconds",
@@ -121,7 +119,7 @@ def test_vp8_adapts_to_a_500_kbps_link_without_a_standing_queue(tmp_path, shaped
             timeout=180,
         )
         assert client.returncode == 0, client.stderr[-2000:]
-        result = json.loads(client.stdout.split("BENCH-CLIENT ", 1)[1])
+        result = json.loads(client.stdout.split("LINK-CLIENT ", 1)[1])
     finally:
         server.terminate()
         server.wait(timeout=30)

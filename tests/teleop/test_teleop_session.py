@@ -11,7 +11,7 @@ from crowdteleop.client.bot import Bot
 from crowdteleop.client.connection import OfferRefusedError, TeleopClient
 from crowdteleop.recording.episode_file import read_episode
 from crowdteleop.sim import SimConfig, make_simulation
-from tests.teleop_process import ADMIN_TOKEN, TOKEN, run, teleop_server
+from tests.fixtures.teleop_process import ADMIN_TOKEN, TOKEN, run, teleop_server
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
