@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from pydantic import ValidationError
+from pydantic_core import ErrorDetails
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
@@ -15,6 +16,9 @@ from rich.table import Table
 from crowdteleop.errors import CrowdteleopError
 from crowdteleop.tasks import TASKS
 from crowdteleop.vocab import ControllerName
+
+if TYPE_CHECKING:  # `crowdteleop --help` loads no simulator
+    from crowdteleop.control.scripted import EpisodeResult
 
 app = typer.Typer(help="crowdteleop: crowdsourced robot teleoperation.", no_args_is_help=True)
 console = Console()
@@ -59,7 +63,7 @@ def _explain(exc: Exception) -> str:
     return str(exc)
 
 
-def _field_message(error: Any) -> str:
+def _field_message(error: ErrorDetails) -> str:
     """One pydantic error as "field: message", so a user knows which option to fix."""
     message = error["msg"].removeprefix("Value error, ")
     field = ".".join(str(part) for part in error.get("loc", ()))
@@ -75,11 +79,11 @@ def _film_demo(
     width: int,
     height: int,
     output: Path,
-):
+) -> EpisodeResult:
     # Heavy imports here so `crowdteleop --help` stays instant.
     from crowdteleop.control.config import ControlConfig
     from crowdteleop.control.scripted import ScriptedOperator, run_episode
-    from crowdteleop.control.teleoperator import Teleoperator
+    from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
     from crowdteleop.dataset.video import Mp4Writer
     from crowdteleop.sim import SimConfig, make_simulation
     from crowdteleop.sim.rendering import validate_resolution
@@ -99,7 +103,7 @@ def _film_demo(
         with Mp4Writer(output, fps) as video, Progress(*columns, console=console) as bar:
             job = bar.add_task(f"{task} (simulated seconds)", total=limit)
 
-            def film(step: object) -> None:
+            def film(step: TeleopStep) -> None:
                 video.write(sim.render(camera, width, height))
                 bar.advance(job, sim.control_dt)
 
@@ -189,10 +193,11 @@ def protocol_schema() -> None:
     print(json.dumps(json_schema(), indent=2))
 
 
-def _read_json(path: Path) -> dict:
+def _read_json(path: Path) -> dict[str, Any]:
     import json
 
-    return json.loads(path.read_text())
+    fields: dict[str, Any] = json.loads(path.read_text())
+    return fields
 
 
 from crowdteleop.coord.cli import serve as _serve  # noqa: E402  (registered last, see coord/cli.py)

@@ -54,7 +54,8 @@ def _backend_mujoco_loaded() -> str | None:
         from mujoco import gl_context
     except ImportError:
         return None
-    return gl_context.GLContext.__module__.rsplit(".", 1)[-1]
+    module: str = gl_context.GLContext.__module__
+    return module.rsplit(".", 1)[-1]
 
 
 def render_backend_error(cause: BaseException) -> RenderBackendError:

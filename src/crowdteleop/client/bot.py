@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -77,7 +78,8 @@ class Bot:
         self.world: RemoteWorld | None = None
         self._scene: int | None = None
         self.episodes_wanted: int | None = None
-        self._last_pose: tuple | None = None
+        # (position, quaternion, engaged, gripper) as last sent by `TeleopClient.send_pose`
+        self._last_pose: tuple[Iterable[float], Iterable[float], bool, bool] | None = None
         self._await_seq: int | None = None  # a pose the server must apply before we go on
         client.on_privileged = self._on_privileged
 
@@ -90,7 +92,7 @@ class Bot:
         self.world.latest = message
         if self.operator is None:
             self.operator = ScriptedOperator(
-                self.world,  # type: ignore[arg-type]  # reads only what RemoteWorld has
+                self.world,
                 mapping=self.mapping,
                 style=self.style,
                 seed=self.seed,

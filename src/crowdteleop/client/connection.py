@@ -8,14 +8,22 @@ import json
 import logging
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import aiohttp
 import numpy as np
-from aiortc import RTCConfiguration, RTCIceServer, RTCPeerConnection, RTCSessionDescription
+import numpy.typing as npt
+from aiortc import (
+    MediaStreamTrack,
+    RTCConfiguration,
+    RTCIceServer,
+    RTCPeerConnection,
+    RTCSessionDescription,
+)
 from aiortc.mediastreams import MediaStreamError
+from av import VideoFrame
 
 from crowdteleop.client.latency import FrameMatcher, LatencyTracker
 from crowdteleop.client.receiver import complete_frames_on_marker
@@ -61,7 +69,7 @@ class ClientState:
     haptics: list[HapticEvent] = field(default_factory=list)
     errors: list[ErrorEvent] = field(default_factory=list)
     frames_received: int = 0
-    latest_frame: np.ndarray | None = None
+    latest_frame: npt.NDArray[np.uint8] | None = None
     frame_times: deque[float] = field(default_factory=lambda: deque(maxlen=100))
 
     def fps(self) -> float:
@@ -163,20 +171,23 @@ class TeleopClient:
 
     # --- receiving ------------------------------------------------------------------------
 
-    def _on_track(self, track: Any) -> None:
+    def _on_track(self, track: MediaStreamTrack) -> None:
         self._tasks.append(asyncio.create_task(self._read_video(track)))
 
-    async def _read_video(self, track: Any) -> None:
+    async def _read_video(self, track: MediaStreamTrack) -> None:
         while True:
             try:
                 frame = await track.recv()
             except MediaStreamError:
                 return
+            # The server sends one video track; aiortc's decoders stamp every frame's pts.
+            assert isinstance(frame, VideoFrame) and frame.pts is not None
             now = time.monotonic()
             self.state.frames_received += 1
             self.state.frame_times.append(now)
             if frame.width > 2:
-                self.state.latest_frame = frame.to_ndarray(format="rgb24")
+                rgb = frame.to_ndarray(format="rgb24")  # uint8 already: asarray copies nothing
+                self.state.latest_frame = np.asarray(rgb, dtype=np.uint8)
             seq = self.matcher.command_seq_of(frame.pts)
             if seq is not None:
                 self.latency.frame_shown(seq, now)
@@ -232,8 +243,8 @@ class TeleopClient:
 
     def send_pose(
         self,
-        position: Sequence[float],
-        quaternion: Sequence[float],
+        position: Iterable[float],
+        quaternion: Iterable[float],
         engaged: bool,
         gripper: bool,
     ) -> int:

@@ -8,16 +8,17 @@ carries the timestamp. Never call it in a server process.
 
 from __future__ import annotations
 
-from typing import Any
-
 import aiortc.rtcrtpreceiver
+from aiortc.codecs.base import Decoder
+from aiortc.jitterbuffer import JitterFrame
 from av import VideoFrame
+from av.frame import Frame
 
 from crowdteleop.teleop.video import TIME_BASE
 
 
-class _CountingDecoder:
-    def decode(self, encoded_frame: Any) -> list[VideoFrame]:
+class _CountingDecoder(Decoder):
+    def decode(self, encoded_frame: JitterFrame) -> list[Frame]:
         frame = VideoFrame(width=2, height=2, format="yuv420p")
         frame.pts = encoded_frame.timestamp
         frame.time_base = TIME_BASE
@@ -25,4 +26,7 @@ class _CountingDecoder:
 
 
 def disable_decoding() -> None:
-    aiortc.rtcrtpreceiver.get_decoder = lambda _codec: _CountingDecoder()
+    # The receiver module imports get_decoder without re-exporting it; replace that name.
+    aiortc.rtcrtpreceiver.get_decoder = (  # type: ignore[attr-defined]
+        lambda codec: _CountingDecoder()
+    )

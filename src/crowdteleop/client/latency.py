@@ -69,7 +69,7 @@ class LatencyTracker:
             self.sent.popitem(last=False)
 
     def frame_shown(self, command_seq: int, when: float) -> list[float]:
-        new = []
+        new: list[float] = []
         if command_seq <= self._shown_up_to:
             return new
         for seq in [s for s in self.sent if self._shown_up_to < s <= command_seq]:

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import aiortc.rtcrtpreceiver
 from aiortc.jitterbuffer import JitterBuffer, JitterFrame
+from aiortc.rtp import RtpPacket
 
 
 class MarkerJitterBuffer(JitterBuffer):
     def _remove_frame(self, sequence_number: int) -> JitterFrame | None:
         if not self._is_video or self._origin is None:
             return super()._remove_frame(sequence_number)
-        packets = []
+        packets: list[RtpPacket] = []
         for count in range(self.capacity):
             packet = self._packets[(self._origin + count) % self.capacity]
             if packet is None:
@@ -25,9 +26,9 @@ class MarkerJitterBuffer(JitterBuffer):
                 return super()._remove_frame(sequence_number)  # no marker seen: aiortc's rule
             packets.append(packet)
             if packet.marker:
-                frame = JitterFrame(
-                    data=b"".join(p._data for p in packets), timestamp=packet.timestamp
-                )
+                # aiortc's receiver stores each packet's depayloaded bytes in `_data` at runtime
+                data = b"".join(p._data for p in packets)  # type: ignore[attr-defined]
+                frame = JitterFrame(data=data, timestamp=packet.timestamp)
                 self.remove(count + 1)
                 return frame
         return None
@@ -35,4 +36,5 @@ class MarkerJitterBuffer(JitterBuffer):
 
 def complete_frames_on_marker() -> None:
     """Use `MarkerJitterBuffer` for the receivers this process creates from now on."""
-    aiortc.rtcrtpreceiver.JitterBuffer = MarkerJitterBuffer  # type: ignore[misc]
+    # The receiver module imports JitterBuffer without re-exporting it; replace that name.
+    aiortc.rtcrtpreceiver.JitterBuffer = MarkerJitterBuffer  # type: ignore[attr-defined]

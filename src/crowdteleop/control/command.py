@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.errors import InvalidCommandError
 
@@ -20,8 +21,8 @@ class DeviceCommand:
     device and ``client_time_ms`` is the client's clock (milliseconds); both go into recordings.
     """
 
-    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    quaternion: np.ndarray = field(default_factory=lambda: IDENTITY_QUATERNION.copy())
+    position: npt.NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    quaternion: npt.NDArray[np.float64] = field(default_factory=lambda: IDENTITY_QUATERNION.copy())
     engaged: bool = False
     gripper_closed: bool = False
     reset: bool = False

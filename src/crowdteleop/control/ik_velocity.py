@@ -10,6 +10,7 @@ from __future__ import annotations
 import mink
 import mujoco
 import numpy as np
+import numpy.typing as npt
 import qpsolvers  # mink's QP front end
 
 from crowdteleop.sim.mjcf import kinematics_only, without_free_joints
@@ -52,7 +53,7 @@ class IKVelocityController:
         self._last_target: Pose | None = None
         self._last_setpoint = np.zeros(len(self._arm_qpos))
 
-    def joint_setpoint(self, target: Pose, robot: RobotState) -> np.ndarray:
+    def joint_setpoint(self, target: Pose, robot: RobotState) -> npt.NDArray[np.float64]:
         """q*: arm joint positions that put the end effector at `target`."""
         q = self._model.qpos0.copy()
         q[self._arm_qpos] = robot.joint_positions
@@ -72,15 +73,21 @@ class IKVelocityController:
                 damping=1e-3,
                 limits=self._limits,
             )
-            velocity = qpsolvers.solve_problem(problem, solver="quadprog").x / IK_STEP_S
+            solution = qpsolvers.solve_problem(problem, solver="quadprog").x
+            if solution is None:  # quadprog found no solution (mink's solve_ik asserts this)
+                raise RuntimeError("the IK quadratic program has no solution")
+            velocity = solution / IK_STEP_S
             velocity[self._other_dofs] = 0.0
             self._configuration.integrate_inplace(velocity, IK_STEP_S)
             error = self._configuration.data.site_xpos[self._site_id] - target.position
             if np.linalg.norm(error) < POSITION_TOLERANCE_M:
                 break
-        return self._configuration.q[self._arm_qpos].copy()
+        setpoint: npt.NDArray[np.float64] = self._configuration.q[self._arm_qpos].copy()
+        return setpoint
 
-    def action(self, target: Pose, gripper_closed: bool, robot: RobotState) -> np.ndarray:
+    def action(
+        self, target: Pose, gripper_closed: bool, robot: RobotState
+    ) -> npt.NDArray[np.float64]:
         if target is self._last_target:  # holding still (clutch released): same q*, no IK
             q_star = self._last_setpoint
         else:

@@ -7,6 +7,7 @@ let go, move the phone somewhere comfortable and carry on (the paper's clutch).
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.config import MappingConfig
@@ -15,7 +16,7 @@ from crowdteleop.sim.types import Pose
 Quaternion = tuple[float, float, float, float]  # (x, y, z, w)
 
 
-def _unit(q: np.ndarray | tuple[float, ...]) -> Quaternion:
+def _unit(q: npt.NDArray[np.float64] | tuple[float, ...]) -> Quaternion:
     x, y, z, w = (float(v) for v in q)
     norm = (x * x + y * y + z * z + w * w) ** 0.5
     return x / norm, y / norm, z / norm, w / norm
@@ -37,7 +38,7 @@ def _inv(q: Quaternion) -> Quaternion:
     return -q[0], -q[1], -q[2], q[3]
 
 
-def _rotate(q: Quaternion, v: np.ndarray) -> np.ndarray:
+def _rotate(q: Quaternion, v: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     x, y, z, _ = _mul(_mul(q, (float(v[0]), float(v[1]), float(v[2]), 0.0)), _inv(q))
     return np.array([x, y, z])
 

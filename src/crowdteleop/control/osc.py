@@ -7,6 +7,7 @@ scale 0.05 m and 0.5 rad per unit; we send the clipped, scaled error to the targ
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.sim.types import Pose, RobotState
 from crowdteleop.vocab import ActionMode
@@ -28,7 +29,9 @@ class OSCController:
     def reset(self) -> None:
         """Stateless between steps: nothing to forget."""
 
-    def action(self, target: Pose, gripper_closed: bool, robot: RobotState) -> np.ndarray:
+    def action(
+        self, target: Pose, gripper_closed: bool, robot: RobotState
+    ) -> npt.NDArray[np.float64]:
         world_to_base = robot.base.rotation.inv()
         # Aim where the hand will be, not where it is: subtracting the distance it will still
         # travel (velocity * lead time) damps the overshoot of chasing a moving goal.

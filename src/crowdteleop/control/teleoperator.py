@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.config import ControlConfig
@@ -25,7 +26,9 @@ class ControlLaw(Protocol):
 
     def reset(self) -> None: ...
 
-    def action(self, target: Pose, gripper_closed: bool, robot: RobotState) -> np.ndarray: ...
+    def action(
+        self, target: Pose, gripper_closed: bool, robot: RobotState
+    ) -> npt.NDArray[np.float64]: ...
 
 
 def make_controller(config: ControlConfig, sim: Simulation) -> ControlLaw:
@@ -45,7 +48,7 @@ class TeleopStep:
 
     command: DeviceCommand
     target: Pose
-    action: np.ndarray
+    action: npt.NDArray[np.float64]
     result: StepResult
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from typing import Any
 
 from fastapi import APIRouter, Depends
 
@@ -20,7 +21,9 @@ from crowdteleop.coord.schemas import (
 from crowdteleop.coord.stats import completion_times, per_hour
 from crowdteleop.coord.tables import Session
 
-ERRORS = {code: {"model": ErrorBody} for code in (401, 404, 409, 422)}
+ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorBody} for code in (401, 404, 409, 422)
+}
 router = APIRouter(
     prefix="/api/admin", tags=["admin"], dependencies=[Depends(require_admin)], responses=ERRORS
 )
@@ -31,7 +34,7 @@ def _summary(session: Session, now: float, position: int | None) -> SessionSumma
         session_id=session.id,
         worker_id=session.worker_id,
         campaign=session.campaign,
-        state=session.state,  # type: ignore[arg-type]
+        state=session.state,
         queue_position=position,
         task=session.task,
         robot=session.robot,
@@ -62,7 +65,7 @@ async def overview(coordinator: CoordinatorDep) -> AdminOverview:
                 session_id=session_id,
                 url=handle.url if handle else None,
                 pid=getattr(handle, "pid", None),
-                alive=bool(handle) and coordinator.pool.launcher.alive(handle),
+                alive=handle is not None and coordinator.pool.launcher.alive(handle),
                 started_at=slot.reserved_at,
             )
         )

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from fastapi import APIRouter
 
 from crowdteleop.coord.deps import CoordinatorDep, Credentials, token_of
@@ -9,7 +11,7 @@ from crowdteleop.coord.errors import ApiError
 from crowdteleop.coord.schemas import EpisodeAck, ErrorBody
 from crowdteleop.teleop.messages import EpisodeReport
 
-ERRORS = {code: {"model": ErrorBody} for code in (401, 403, 422)}
+ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorBody} for code in (401, 403, 422)}
 router = APIRouter(prefix="/internal", tags=["internal"], responses=ERRORS)
 
 

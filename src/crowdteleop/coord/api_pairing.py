@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from typing import Any
 
 from fastapi import APIRouter, Request
 
@@ -21,7 +22,9 @@ from crowdteleop.coord.teleop_proxy import forward_offer
 from crowdteleop.tasks import get_task
 from crowdteleop.teleop.messages import OfferAnswer
 
-ERRORS = {code: {"model": ErrorBody} for code in (401, 404, 409, 422, 429)}
+ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorBody} for code in (401, 404, 409, 422, 429)
+}
 router = APIRouter(prefix="/api", tags=["phone"], responses=ERRORS)
 
 
@@ -74,10 +77,10 @@ async def phone_session(session: PhoneSession, coordinator: CoordinatorDep) -> P
     """What the phone page shows: the task and whether the robot is ready."""
     return PhoneSessionView(
         session_id=session.id,
-        state=session.state,  # type: ignore[arg-type]
+        state=session.state,
         task=session.task,
         instruction=get_task(session.task).instruction,
-        ended_reason=session.ended_reason,  # type: ignore[arg-type]
+        ended_reason=session.ended_reason,
         ice_servers=list(coordinator.config.ice_servers),
     )
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Query, Request
 
@@ -31,7 +31,9 @@ from crowdteleop.coord.schemas import (
 from crowdteleop.coord.teleop_proxy import forward_offer
 from crowdteleop.teleop.messages import OfferAnswer
 
-ERRORS = {code: {"model": ErrorBody} for code in (401, 404, 409, 422)}
+ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorBody} for code in (401, 404, 409, 422)
+}
 router = APIRouter(prefix="/api", tags=["workers"], responses=ERRORS)
 
 
@@ -65,7 +67,7 @@ async def join(body: JoinRequest, coordinator: CoordinatorDep) -> JoinResponse:
     return JoinResponse(
         worker_id=worker.id,
         worker_token=token,
-        source=who.source,  # type: ignore[arg-type]
+        source=who.source,
         campaign=campaign_view(campaign),
     )
 

@@ -15,6 +15,10 @@ from crowdteleop.vocab import WORKER_DEVICES, ControllerName, WorkerDevice
 NAME_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
 
 
+def _default_controllers() -> list[ControllerName]:
+    return ["ik-velocity"]
+
+
 class CampaignConfig(BaseModel):
     """One data-collection campaign; sessions are assigned round-robin over its lists."""
 
@@ -29,7 +33,7 @@ class CampaignConfig(BaseModel):
     )
     tasks: list[str] = Field(default_factory=lambda: ["lift"], min_length=1)
     robots: list[str] = Field(default_factory=lambda: ["Sawyer"], min_length=1)
-    controllers: list[ControllerName] = Field(default_factory=lambda: ["ik-velocity"], min_length=1)
+    controllers: list[ControllerName] = Field(default_factory=_default_controllers, min_length=1)
     interfaces: list[WorkerDevice] = Field(
         default_factory=lambda: list(WORKER_DEVICES), min_length=1
     )

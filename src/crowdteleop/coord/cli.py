@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 if TYPE_CHECKING:
+    import uvicorn
+
     from crowdteleop.coord.config import CoordConfig
 
 TlsFiles = tuple[Path, Path]
@@ -164,7 +166,7 @@ def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFil
 
 
 async def _run(
-    settings: object, sockets: list, tls: tuple[Path, Path] | None, show_token: bool
+    settings: CoordConfig, sockets: list[socket.socket], tls: TlsFiles | None, show_token: bool
 ) -> None:
     import asyncio
 
@@ -173,8 +175,10 @@ async def _run(
     from crowdteleop.coord.app import create_app
 
     app = create_app(settings)
-    ssl = {"ssl_certfile": str(tls[0]), "ssl_keyfile": str(tls[1])} if tls else {}
-    main = uvicorn.Server(uvicorn.Config(app, log_level="warning", **ssl))
+    certificate, key = (str(tls[0]), str(tls[1])) if tls else (None, None)
+    main = uvicorn.Server(
+        uvicorn.Config(app, log_level="warning", ssl_certfile=certificate, ssl_keyfile=key)
+    )
     servers = [main.serve(sockets=[sockets[0]])]
     side = None
     if len(sockets) > 1:
@@ -209,7 +213,7 @@ async def _run(
 class _QuietServer:
     """A second listener (plain HTTP on loopback) that leaves signals to the main server."""
 
-    def __init__(self, config: Any) -> None:
+    def __init__(self, config: uvicorn.Config) -> None:
         import uvicorn
 
         class Server(uvicorn.Server):
@@ -217,7 +221,7 @@ class _QuietServer:
             def capture_signals(self) -> Iterator[None]:
                 yield
 
-        self._server = Server(config)  # type: ignore[arg-type]
+        self._server = Server(config)
 
     @property
     def should_exit(self) -> bool:

@@ -18,7 +18,8 @@ SessionId = Annotated[str, Path(pattern=r"^s_[0-9a-f]{16}$", description="a sess
 
 
 def get_coordinator(request: Request) -> Coordinator:
-    return request.app.state.coordinator
+    coordinator: Coordinator = request.app.state.coordinator  # set by create_app
+    return coordinator
 
 
 CoordinatorDep = Annotated[Coordinator, Depends(get_coordinator)]

@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from fastapi import APIRouter, Request
-from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
+from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException
 from starlette.types import Scope
@@ -20,7 +20,7 @@ MISSING = """<!doctype html><meta charset="utf-8"><title>Page missing</title>
 <p>This coordination server has no <code>web/static/{name}.html</code>.</p>"""
 
 
-def _page(name: str) -> Any:
+def _page(name: str) -> Response:
     path = STATIC / f"{name}.html"
     if not path.is_file():
         return HTMLResponse(MISSING.format(name=name), status_code=404)
@@ -28,7 +28,7 @@ def _page(name: str) -> Any:
 
 
 def _register(name: str) -> None:
-    async def page() -> Any:
+    async def page() -> Response:
         return _page(name)
 
     page.__name__ = f"{name}_page"
@@ -63,7 +63,7 @@ class StaticDirectory(StaticFiles):
         if self.folder.is_dir():
             await super().check_config()
 
-    async def get_response(self, path: str, scope: Scope) -> Any:
+    async def get_response(self, path: str, scope: Scope) -> Response:
         if not self.folder.is_dir():
             raise HTTPException(404, "no static files are installed")
         return await super().get_response(path, scope)

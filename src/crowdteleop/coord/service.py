@@ -135,7 +135,11 @@ class Coordinator:
             await self.store.log("admitted", session.id, session.worker_id)
             task = asyncio.create_task(self._launch(session.id), name=f"launch-{session.id}")
             self._launches[session.id] = task
-            task.add_done_callback(lambda _t, sid=session.id: self._launches.pop(sid, None))
+
+            def forget(_task: asyncio.Task[None], sid: str = session.id) -> None:
+                self._launches.pop(sid, None)
+
+            task.add_done_callback(forget)
 
     async def _launch(self, session_id: str) -> None:
         session = await self.store.session(session_id)
@@ -196,11 +200,15 @@ class Coordinator:
         """The (task, robot, controller) combinations the campaigns hand out, round-robin."""
         keys: list[SpareKey] = []
         for campaign in self.config.campaigns:
-            lists = (campaign.tasks, campaign.robots, campaign.controllers)
-            for n in range(max(len(items) for items in lists)):
-                key = tuple(items[n % len(items)] for items in lists)
+            tasks, robots, controllers = campaign.tasks, campaign.robots, campaign.controllers
+            for n in range(max(len(tasks), len(robots), len(controllers))):
+                key = (
+                    tasks[n % len(tasks)],
+                    robots[n % len(robots)],
+                    controllers[n % len(controllers)],
+                )
                 if key not in keys:
-                    keys.append(key)  # type: ignore[arg-type]
+                    keys.append(key)
         return keys
 
     def _spare_config(self, key: SpareKey) -> TeleopConfig:
@@ -348,14 +356,14 @@ class Coordinator:
             time_left = round(max(0.0, session.ready_at + session.time_limit_s - time.time()), 1)
         return SessionView(
             session_id=session.id,
-            state=session.state,  # type: ignore[arg-type]
+            state=session.state,
             queue_position=position,
             eta_s=eta,
             task=session.task,
             robot=session.robot,
             controller=session.controller,
             instruction=get_task(session.task).instruction,
-            interfaces=session.interfaces,  # type: ignore[arg-type]
+            interfaces=session.interfaces,
             time_limit_s=session.time_limit_s,
             time_left_s=time_left,
             demos_done=session.demos_done,
@@ -363,5 +371,5 @@ class Coordinator:
             completion_code=session.completion_code,
             redirect_url=redirect,
             ice_servers=list(self.config.ice_servers),
-            ended_reason=session.ended_reason,  # type: ignore[arg-type]
+            ended_reason=session.ended_reason,
         )

@@ -61,7 +61,7 @@ def interface_of(episode: Episode) -> str:
     named = EpisodeMetadata.model_validate(episode.metadata).interface
     if named:
         return named
-    devices = Counter(c.get("device") for c in episode.commands if c.get("device"))
+    devices = Counter(device for c in episode.commands if (device := c.get("device")))
     return devices.most_common(1)[0][0] if devices else "unknown"
 
 
@@ -75,8 +75,8 @@ def network_of(metadata: dict[str, Any]) -> str:
     rtt, kbps = telemetry.get("rtt_ms"), telemetry.get("bitrate_kbps")
     if not rtt and not kbps:
         return "unknown"
-    slow = bool(kbps) and kbps < 1000
-    late = bool(rtt) and rtt >= 150
+    slow = bool(kbps and kbps < 1000)
+    late = bool(rtt and rtt >= 150)
     return {
         (False, False): "baseline",
         (True, False): "low-capacity",
@@ -169,6 +169,7 @@ def build_dataset(
     if not chosen:
         raise DatasetError(f"no {'' if include_failed else 'successful '}episodes to build from")
     chosen.sort(key=lambda pair: (pair[1].created_at, pair[1].episode_id))
+    # read_inputs refused episodes without env_args
     envs = {ep.env_args["env_name"] for _, ep in chosen}  # type: ignore[index]
     if len(envs) > 1:
         raise DatasetError(

@@ -199,7 +199,7 @@ def _is_dataset(path: Path) -> bool:
 
     try:
         with h5py.File(path, "r") as file:
-            return file.attrs.get("format") == "crowdteleop-dataset"
+            return bool(file.attrs.get("format") == "crowdteleop-dataset")
     except OSError:
         return False
 

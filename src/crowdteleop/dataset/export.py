@@ -33,7 +33,7 @@ LOW_DIM = {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_closed": 1
 
 @dataclass(frozen=True)
 class Observations:
-    images: dict[str, npt.NDArray[np.float64]]  # camera -> (N, H, W, 3) uint8
+    images: dict[str, npt.NDArray[np.uint8]]  # camera -> (N, H, W, 3)
     low_dim: dict[str, npt.NDArray[np.float64]]  # key -> (N, D) float64
 
 
@@ -47,7 +47,7 @@ def render_observations(
 ) -> Observations:
     """Set each recorded state, render every camera and read the robot's proprioception."""
     sim = checker.simulation(demo)
-    images: dict[str, list[npt.NDArray[np.float64]]] = {camera: [] for camera in cameras}
+    images: dict[str, list[npt.NDArray[np.uint8]]] = {camera: [] for camera in cameras}
     low: dict[str, list[npt.NDArray[np.float64]]] = {
         key: [] for key in (*LOW_DIM, "robot0_joint_pos")
     }
@@ -288,7 +288,7 @@ class _RunningImageStats:
         self.low = np.ones(3)
         self.high = np.zeros(3)
 
-    def add(self, images: npt.NDArray[np.float64]) -> None:
+    def add(self, images: npt.NDArray[np.uint8]) -> None:
         pixels = images.reshape(-1, 3).astype(np.float64) / 255.0
         self.n += len(pixels)
         self.total += pixels.sum(axis=0)

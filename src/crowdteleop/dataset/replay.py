@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -24,6 +24,9 @@ import numpy.typing as npt
 from crowdteleop.dataset.files import DatasetError, open_dataset
 from crowdteleop.recording.episode_file import CorruptEpisodeError, Episode, read_episode
 from crowdteleop.recording.metadata import EpisodeMetadata
+
+if TYPE_CHECKING:  # the interface's types load MuJoCo; reading a dataset should not
+    from crowdteleop.sim.interface import Simulation
 
 
 @dataclass(frozen=True)
@@ -105,7 +108,7 @@ class ReplayChecker:
     """Builds (and reuses) one simulation per recorded ``sim_config``."""
 
     def __init__(self) -> None:
-        self._sims: dict[str, Any] = {}
+        self._sims: dict[str, Simulation] = {}
 
     def __enter__(self) -> ReplayChecker:
         return self
@@ -123,7 +126,7 @@ class ReplayChecker:
             sim.close()
         self._sims.clear()
 
-    def simulation(self, demo: Demo) -> Any:
+    def simulation(self, demo: Demo) -> Simulation:
         """The recording's simulation, checked to hold the recorded model."""
         from crowdteleop.sim import SimConfig, make_simulation
 
@@ -141,7 +144,7 @@ class ReplayChecker:
             )
         return sim
 
-    def start(self, demo: Demo) -> Any:
+    def start(self, demo: Demo) -> Simulation:
         """The simulation at the demo's first state, reset as its episode was.
 
         ``reset_seed`` (if recorded) matters for ``osc-pose`` demos: robosuite's OSC pulls its

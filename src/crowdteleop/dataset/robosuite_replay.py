@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import robosuite
 from robosuite.controllers import load_composite_controller_config
 
@@ -19,7 +20,9 @@ from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.scripted import ScriptedOperator, run_episode
 from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
+from crowdteleop.errors import ConfigError
 from crowdteleop.sim import SimConfig, make_simulation
+from crowdteleop.sim.robosuite_backend import RobosuiteSimulation
 from crowdteleop.tasks import get_task
 
 
@@ -28,10 +31,10 @@ class RecordedEpisode:
     """What replaying an OSC episode in robosuite needs, and where our hand went."""
 
     mjcf_xml: str
-    nullspace_posture: np.ndarray
-    states_before: list[np.ndarray]
-    actions: np.ndarray
-    hands_after: np.ndarray
+    nullspace_posture: npt.NDArray[np.float64]
+    states_before: list[npt.NDArray[np.float64]]
+    actions: npt.NDArray[np.float64]
+    hands_after: npt.NDArray[np.float64]
     success: bool
 
 
@@ -41,8 +44,11 @@ def record_scripted_osc_episode(
     """A scripted operator performs `task` through our fast path with the `osc` controller."""
     control = ControlConfig(controller="osc")
     sim = make_simulation(SimConfig(task=task, action_mode="osc-pose"))
+    if not isinstance(sim, RobosuiteSimulation):  # only robosuite's OSC has a null-space posture
+        sim.close()
+        raise ConfigError(f"task {task!r} does not run on robosuite: nothing to replay there")
     teleop = Teleoperator(sim, control)
-    before: list[np.ndarray] = []
+    before: list[npt.NDArray[np.float64]] = []
     actions, hands = [], []
     step_once = teleop.step
 
@@ -53,7 +59,7 @@ def record_scripted_osc_episode(
         hands.append(sim.robot_state().end_effector.position)
         return step
 
-    teleop.step = recorded_step  # type: ignore[method-assign]
+    teleop.step = recorded_step  # type: ignore[method-assign]  # record what each step did
     try:
         operator = ScriptedOperator(sim, control.mapping, seed=seed)
         result = run_episode(teleop, operator, seed, time_limit_s=time_limit_s)
@@ -94,7 +100,7 @@ class RobosuiteReplayer:
     def close(self) -> None:
         self._env.close()
 
-    def _load(self, state: np.ndarray) -> None:
+    def _load(self, state: npt.NDArray[np.float64]) -> None:
         """Set a recorded state, and make robosuite's arm controller read it.
 
         robosuite's controllers cache the arm's pose and refresh it only when their
@@ -107,7 +113,7 @@ class RobosuiteReplayer:
         self._env.sim.set_state_from_flattened(state)
         self._arm.update(force=True)  # runs the forward pass, then reads the arm
 
-    def _step(self, action: np.ndarray) -> np.ndarray:
+    def _step(self, action: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         # robosuite ramps its finger command 0.2 per step; start it where our (stateless) gripper
         # command is, so the comparison measures the arm.
         self._gripper.current_action = self._closed * action[-1] - (
@@ -117,8 +123,11 @@ class RobosuiteReplayer:
         return np.array(self._env.sim.data.site_xpos[self._site])
 
     def per_step(
-        self, states_before: Sequence[np.ndarray], actions: np.ndarray, initial_joints: np.ndarray
-    ) -> np.ndarray:
+        self,
+        states_before: Sequence[npt.NDArray[np.float64]],
+        actions: npt.NDArray[np.float64],
+        initial_joints: npt.NDArray[np.float64],
+    ) -> npt.NDArray[np.float64]:
         """Hand positions after each action, each stepped from the recorded state before it."""
         self._arm.update_initial_joints(initial_joints)
         hands = []
@@ -128,8 +137,11 @@ class RobosuiteReplayer:
         return np.array(hands)
 
     def open_loop(
-        self, first_state: np.ndarray, actions: np.ndarray, initial_joints: np.ndarray
-    ) -> np.ndarray:
+        self,
+        first_state: npt.NDArray[np.float64],
+        actions: npt.NDArray[np.float64],
+        initial_joints: npt.NDArray[np.float64],
+    ) -> npt.NDArray[np.float64]:
         """Hand positions after each action, all stepped from the first state (action replay)."""
         self._arm.update_initial_joints(initial_joints)
         self._load(first_state)

@@ -17,11 +17,13 @@ from typing import Any
 
 import numpy as np
 
+from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
+from crowdteleop.recording.episode_file import StepRecord
 from crowdteleop.recording.metadata import EpisodeMetadata
 from crowdteleop.recording.versions import runtime_versions
-from crowdteleop.recording.wal import EpisodeRecorder, StepRecord
+from crowdteleop.recording.wal import EpisodeRecorder
 from crowdteleop.sim.interface import Simulation
 from crowdteleop.teleop.episode import episode_metadata
 from crowdteleop.vocab import ControllerName, Outcome
@@ -90,7 +92,7 @@ def record_scripted_episode(
     step_once = teleop.step
     timing = {"step": 0.0, "record": 0.0, "step_cpu": 0.0, "record_cpu": 0.0}
 
-    def recorded_step(command: Any) -> TeleopStep:
+    def recorded_step(command: DeviceCommand) -> TeleopStep:
         state = sim.get_state()
         started_wall, started, cpu = time.time(), time.perf_counter(), time.thread_time()
         step = step_once(command)
@@ -123,11 +125,11 @@ def record_scripted_episode(
         timing["record_cpu"] += time.thread_time() - record_cpu
         return step
 
-    teleop.step = recorded_step  # type: ignore[method-assign]
+    teleop.step = recorded_step  # type: ignore[method-assign]  # record each step as it runs
     try:
         result = run_episode(teleop, operator, seed, time_limit_s=time_limit_s)
     finally:
-        teleop.step = step_once  # type: ignore[method-assign]
+        teleop.step = step_once  # type: ignore[method-assign]  # undo the wrapping
     outcome: Outcome = "success" if result.success else "timeout"
     path = (
         recorder.finalize(outcome, {"versions": runtime_versions(), **extra}) if finalize else None

@@ -7,6 +7,7 @@ from types import TracebackType
 
 import av
 import numpy as np
+import numpy.typing as npt
 
 
 class Mp4Writer:
@@ -25,7 +26,7 @@ class Mp4Writer:
         self._container = av.open(str(self.path), mode="w")
         return self
 
-    def write(self, frame: np.ndarray) -> None:
+    def write(self, frame: npt.NDArray[np.uint8]) -> None:
         assert self._container is not None, "use Mp4Writer as a context manager"
         if self._stream is None:
             height, width = frame.shape[:2]

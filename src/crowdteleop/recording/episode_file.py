@@ -12,10 +12,11 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import h5py
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.errors import CrowdteleopError
 from crowdteleop.recording.storage import fsync_directory
@@ -36,14 +37,29 @@ class CorruptEpisodeError(CrowdteleopError, ValueError):
     """A file that is not, or no longer, a readable crowdteleop episode or write-ahead log."""
 
 
+class CommandRecord(TypedDict, total=False):
+    """The device command of one step as recorded: the driving device's latest state as sent.
+
+    A plain dict at runtime; the recorder checks only that it is one and JSON-serializable, and
+    a missing or odd field is stored as NaN / -1 / False / "" beside the raw JSON."""
+
+    seq: int
+    client_time_ms: float
+    device: str | None
+    position: list[float]
+    quaternion: list[float]
+    engaged: bool
+    gripper: float | bool  # closed: a bool from a device, a float from the scripted rig
+
+
 @dataclass(slots=True)  # not frozen: built every control step, and a frozen __init__ is slower
 class StepRecord:
     """One control step as the teleop server saw it; ``state`` is the state before ``action``."""
 
     index: int
-    state: np.ndarray
-    action: np.ndarray
-    command: dict[str, Any]
+    state: npt.NDArray[np.float64]
+    action: npt.NDArray[np.float64]
+    command: CommandRecord
     server_time: float
     step_duration_s: float
     reward: float
@@ -60,13 +76,13 @@ class EpisodeData:
     model_xml: str | None
     env_args: dict[str, Any] | None
     created_at: float
-    states: np.ndarray  # (N, S) float64
-    actions: np.ndarray  # (N, A) float64
-    rewards: np.ndarray  # (N,) float64
-    success: np.ndarray  # (N,) bool
-    server_time: np.ndarray  # (N,) float64
-    step_duration_s: np.ndarray  # (N,) float64
-    commands: list[dict[str, Any]]
+    states: npt.NDArray[np.float64]  # (N, S)
+    actions: npt.NDArray[np.float64]  # (N, A)
+    rewards: npt.NDArray[np.float64]  # (N,)
+    success: npt.NDArray[np.bool_]  # (N,)
+    server_time: npt.NDArray[np.float64]  # (N,)
+    step_duration_s: npt.NDArray[np.float64]  # (N,)
+    commands: list[CommandRecord]
     contacts: list[list[dict[str, Any]]]
 
     @property
@@ -86,7 +102,7 @@ class Episode(EpisodeData):
     """A finished episode file read back."""
 
     outcome: Outcome
-    dones: np.ndarray  # (N,) uint8, robomimic's convention: 1 on success steps and the last
+    dones: npt.NDArray[np.uint8]  # (N,), robomimic's convention: 1 on success steps and the last
     finalized_at: float
     recovered: bool  # finalized by recover_orphans after a crash
 
@@ -191,7 +207,7 @@ def _write_hdf5(
             commands.create_dataset(name, data=column, dtype=column.dtype)
 
 
-def _command_columns(commands: list[dict[str, Any]]) -> dict[str, np.ndarray]:
+def _command_columns(commands: list[CommandRecord]) -> dict[str, npt.NDArray[np.generic]]:
     """The device commands as columns; a field a command lacks is NaN / -1 / False / ""."""
     return {
         "seq": np.array([_int(c.get("seq")) for c in commands], dtype=np.int64),
@@ -223,7 +239,7 @@ def _int(value: Any) -> int:
     return value if integer and -(2**63) <= value < 2**63 else -1  # raw keeps a larger one
 
 
-def _floats(value: Any, n: int) -> np.ndarray:
+def _floats(value: Any, n: int) -> npt.NDArray[np.float64]:
     try:
         array = np.asarray(value, dtype=float).reshape(-1)
     except (TypeError, ValueError):
@@ -244,7 +260,7 @@ def _read_episode(path: Path) -> Episode:
             env_args = attrs.get("env_args")
             return Episode(
                 episode_id=str(attrs["episode_id"]),
-                outcome=str(attrs["outcome"]),  # type: ignore[arg-type]
+                outcome=str(attrs["outcome"]),  # type: ignore[arg-type]  # written as an Outcome
                 metadata=json.loads(attrs["metadata"]),
                 model_xml=demo.attrs.get("model_file"),
                 env_args=json.loads(env_args) if env_args is not None else None,

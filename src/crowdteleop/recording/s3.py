@@ -159,7 +159,7 @@ class S3Storage:
 
     def list(self, prefix: str = "") -> list[str]:
         def pages() -> list[str]:
-            keys = []
+            keys: list[str] = []
             paginator = self._client.get_paginator("list_objects_v2")
             for page in paginator.paginate(Bucket=self.config.bucket, Prefix=self.prefix + prefix):
                 keys.extend(item["Key"][len(self.prefix) :] for item in page.get("Contents", []))
@@ -191,7 +191,10 @@ class S3Storage:
         from botocore.exceptions import ClientError
 
         try:
-            return self._client.head_object(Bucket=self.config.bucket, Key=object_key)
+            head: dict[str, Any] = self._client.head_object(
+                Bucket=self.config.bucket, Key=object_key
+            )
+            return head
         except ClientError as error:
             if _code(error) in ("404", "NoSuchKey", "NotFound"):
                 return None

@@ -13,6 +13,7 @@ same key, same URI). ``wait`` lets a caller block until a given key is confirmed
 
 from __future__ import annotations
 
+import builtins
 import hashlib
 import json
 import logging
@@ -119,11 +120,11 @@ class SpooledStorage:
 
     # --- the spool ----------------------------------------------------------------------------
 
-    def pending(self) -> list[str]:
+    def pending(self) -> builtins.list[str]:  # `list` here is the method above
         """Keys spooled and not yet confirmed by the store, oldest first."""
         return [entry.key for entry in self.pending_entries()]
 
-    def pending_entries(self) -> list[SpoolEntry]:
+    def pending_entries(self) -> builtins.list[SpoolEntry]:
         entries = []
         for manifest in self.directory.glob("*.json"):
             entry = self._read_manifest(manifest)

@@ -131,7 +131,7 @@ class LocalDirectoryStorage:
         return local_path
 
     def list(self, prefix: str = "") -> list[str]:
-        keys = []
+        keys: list[str] = []
         for directory, subdirectories, files in os.walk(self.root):
             subdirectories[:] = [name for name in subdirectories if not name.startswith(".")]
             keys.extend(

@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.errors import InvalidActionError, InvalidStateError
 from crowdteleop.recording.episode_file import (
@@ -329,7 +330,9 @@ class EpisodeRecorder:
         self._shapes = (state_size,), (action_size,)
         self._zeros = np.zeros(state_size), np.zeros(action_size)
 
-    def _checked_vectors(self, state: Any, action: Any) -> tuple[np.ndarray, np.ndarray]:
+    def _checked_vectors(
+        self, state: Any, action: Any
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """State and action validated one by one (the first step, or anything unusual)."""
         state = _finite_vector(state, "state", InvalidStateError)
         action = _finite_vector(action, "action", InvalidActionError)
@@ -368,7 +371,7 @@ def _create_wal(path: Path, head: bytes) -> int:
     return fd
 
 
-def _finite_vector(value: Any, name: str, error: type[ValueError]) -> np.ndarray:
+def _finite_vector(value: Any, name: str, error: type[ValueError]) -> npt.NDArray[np.float64]:
     try:
         vector = np.asarray(value, dtype="<f8")
     except (TypeError, ValueError) as exc:

@@ -20,11 +20,16 @@ import logging
 import math
 import struct
 import zlib
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
-from crowdteleop.recording.episode_file import InvalidRecordError, StepRecord, to_json
+from crowdteleop.recording.episode_file import (
+    CommandRecord,
+    InvalidRecordError,
+    StepRecord,
+    to_json,
+)
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +60,8 @@ def frame(payload: bytes) -> bytes:
 
 def encode_steps(records: list[StepRecord]) -> tuple[bytes, int]:
     """Validated steps as framed "C" records, and how many parts of them had to become notes."""
-    parts, notes = [], 0
+    parts: list[bytes] = []
+    notes = 0
     for record in records:
         payload, noted = _encode_step(record)
         parts += (FRAME.pack(len(payload), zlib.crc32(payload)), payload)
@@ -111,7 +117,7 @@ def _json_or_notes(rest: dict[str, Any], index: int) -> tuple[bytes, int]:
     return to_json(rest, "step").encode(), notes
 
 
-def _pack_command(command: dict[str, Any]) -> tuple[int, tuple[Any, ...]]:
+def _pack_command(command: CommandRecord) -> tuple[int, tuple[Any, ...]]:
     """(flags, the _COMPACT fields) of a command that packs exactly, else (0, zeros)."""
     order = _KEY_ORDERS.get(tuple(command)) or _key_order(command)
     if order is None:
@@ -151,7 +157,7 @@ def _pack_command(command: dict[str, Any]) -> tuple[int, tuple[Any, ...]]:
 _NO_COMMAND = (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, 0.0, 0, bytes(7))
 
 
-def _key_order(command: dict[str, Any]) -> bytes | None:
+def _key_order(command: CommandRecord) -> bytes | None:
     """The order of a command's keys as indices into _COMMAND_KEYS, if they are those keys."""
     keys = tuple(command)
     if len(keys) != len(_COMMAND_KEYS) or set(keys) != set(_COMMAND_KEYS):
@@ -249,9 +255,11 @@ def _decode_compact(payload: bytes, index: int) -> StepRecord:
             "engaged": engaged,
             "gripper": bool(gripper) if flags & _GRIPPER_BOOL else gripper,
         }
-        command = {_COMMAND_KEYS[key]: values[_COMMAND_KEYS[key]] for key in order}
+        command = cast(
+            CommandRecord, {_COMMAND_KEYS[key]: values[_COMMAND_KEYS[key]] for key in order}
+        )
     else:
-        command = rest["command"]
+        command = cast(CommandRecord, rest["command"])  # stored as given: the recorder kept it
     return StepRecord(
         index=index,
         state=vectors[:n_state],

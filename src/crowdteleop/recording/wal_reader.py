@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.recording.episode_file import (
     CorruptEpisodeError,
@@ -91,12 +92,12 @@ def _records(data: bytes) -> Iterator[tuple[int, bytes]]:
 def _decode_header(payload: bytes) -> dict[str, Any]:
     if payload[:1] != b"H":
         raise ValueError("the first record is not a header")
-    header = json.loads(payload[1:])
+    header: dict[str, Any] = json.loads(payload[1:])
     if not isinstance(header["episode_id"], str) or not isinstance(header["metadata"], dict):
         raise ValueError("header without episode id or metadata")
     float(header["created_at"])
     return header
 
 
-def _stack(rows: list[np.ndarray]) -> np.ndarray:
+def _stack(rows: list[npt.NDArray[np.float64]]) -> npt.NDArray[np.float64]:
     return np.stack(rows) if rows else np.zeros((0, 0))

@@ -6,6 +6,7 @@ from collections.abc import Iterable, Mapping
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.sim.types import ContactEvent
 
@@ -71,7 +72,9 @@ class ContactReader:
         ]
 
 
-def touching(data: mujoco.MjData, geoms_1: np.ndarray, geoms_2: np.ndarray) -> bool:
+def touching(
+    data: mujoco.MjData, geoms_1: npt.NDArray[np.bool_], geoms_2: npt.NDArray[np.bool_]
+) -> bool:
     """Any contact between a geom of ``geoms_1`` and one of ``geoms_2`` (bool masks over the
     model's geoms), as robosuite's ``check_contact`` decides by name, without a Python loop."""
     if not data.ncon:

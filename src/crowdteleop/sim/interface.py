@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.types import (
@@ -37,19 +38,19 @@ class Simulation(Protocol):
     def reset(self, seed: int | None = None) -> None:
         """Start a new episode; the same seed gives the same initial state."""
 
-    def step(self, action: np.ndarray) -> StepResult:
+    def step(self, action: npt.NDArray[np.float64]) -> StepResult:
         """Apply `action` (see `action_spec`) for one control period."""
         ...
 
-    def render(self, camera: str, width: int, height: int) -> np.ndarray:
+    def render(self, camera: str, width: int, height: int) -> npt.NDArray[np.uint8]:
         """An RGB frame, uint8 (height, width, 3), top row first."""
         ...
 
-    def get_state(self) -> np.ndarray:
+    def get_state(self) -> npt.NDArray[np.float64]:
         """Flat [time, qpos, qvel]: restoring it reproduces the next step and render exactly."""
         ...
 
-    def set_state(self, state: np.ndarray) -> None: ...
+    def set_state(self, state: npt.NDArray[np.float64]) -> None: ...
 
     def success(self) -> bool: ...
 

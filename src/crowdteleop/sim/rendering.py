@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.errors import InvalidResolutionError, UnknownCameraError
 from crowdteleop.gl import render_backend_error
@@ -39,7 +40,9 @@ class CameraRenderer:
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, MAX_WIDTH)
         model.vis.global_.offheight = max(model.vis.global_.offheight, MAX_HEIGHT)
 
-    def render(self, data: mujoco.MjData, camera: str, width: int, height: int) -> np.ndarray:
+    def render(
+        self, data: mujoco.MjData, camera: str, width: int, height: int
+    ) -> npt.NDArray[np.uint8]:
         if camera not in self.cameras:
             raise UnknownCameraError(
                 f"unknown camera {camera!r}; this scene has: {', '.join(self.cameras)}"
@@ -47,7 +50,8 @@ class CameraRenderer:
         validate_resolution(width, height)
         renderer = self._renderer(width, height)
         renderer.update_scene(data, camera=camera, scene_option=self._option)
-        return renderer.render()
+        image: npt.NDArray[np.uint8] = renderer.render()
+        return image
 
     def _renderer(self, width: int, height: int) -> mujoco.Renderer:
         key = (int(width), int(height))

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from crowdteleop.errors import InvalidActionError, InvalidStateError
@@ -15,11 +16,13 @@ from crowdteleop.errors import InvalidActionError, InvalidStateError
 class Pose:
     """A rigid pose: position in metres and unit quaternion (x, y, z, w)."""
 
-    position: np.ndarray
-    quaternion: np.ndarray
+    position: npt.NDArray[np.float64]
+    quaternion: npt.NDArray[np.float64]
 
     @classmethod
-    def from_matrix(cls, position: np.ndarray, rotation_matrix: np.ndarray) -> Pose:
+    def from_matrix(
+        cls, position: npt.NDArray[np.float64], rotation_matrix: npt.NDArray[np.float64]
+    ) -> Pose:
         """From a position and a 3x3 (or flat 9) rotation matrix, as MuJoCo stores them.
 
         MuJoCo's own conversion: 20x cheaper than scipy's, and it runs every control step.
@@ -56,12 +59,12 @@ class TaskProgress:
 class RobotState:
     """Proprioception the controllers need: arm joints, end-effector and base poses, gripper."""
 
-    joint_positions: np.ndarray
-    joint_velocities: np.ndarray
+    joint_positions: npt.NDArray[np.float64]
+    joint_velocities: npt.NDArray[np.float64]
     end_effector: Pose
     base: Pose
     gripper_closed_fraction: float
-    end_effector_velocity: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    end_effector_velocity: npt.NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
     """(vx, vy, vz, wx, wy, wz) in the world frame, m/s and rad/s."""
 
 
@@ -72,8 +75,8 @@ class KinematicModel:
     mjcf_xml: str
     arm_joints: tuple[str, ...]
     end_effector_site: str
-    joint_position_limits: np.ndarray  # (n, 2) radians
-    joint_velocity_limits: np.ndarray  # (n,) rad/s, symmetric
+    joint_position_limits: npt.NDArray[np.float64]  # (n, 2) radians
+    joint_velocity_limits: npt.NDArray[np.float64]  # (n,) rad/s, symmetric
 
 
 @dataclass(frozen=True)
@@ -87,10 +90,10 @@ class ActionSpec:
 
     mode: str
     size: int
-    low: np.ndarray
-    high: np.ndarray
+    low: npt.NDArray[np.float64]
+    high: npt.NDArray[np.float64]
 
-    def validate(self, action: np.ndarray) -> np.ndarray:
+    def validate(self, action: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """The action as floats clipped to the bounds; wrong shape or NaN / inf is refused."""
         action = np.asarray(action, dtype=float)
         if action.shape != (self.size,):
@@ -106,7 +109,7 @@ _STATE = mujoco.mjtState
 FLAT_STATE = _STATE.mjSTATE_TIME | _STATE.mjSTATE_QPOS | _STATE.mjSTATE_QVEL
 
 
-def flat_state(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+def flat_state(model: mujoco.MjModel, data: mujoco.MjData) -> npt.NDArray[np.float64]:
     """A new [time, qpos, qvel] vector (robosuite's flattened layout, MuJoCo's own state order),
     filled by one ``mj_getState`` call: the teleop server takes one every control step."""
     state = np.empty(1 + model.nq + model.nv)
@@ -114,7 +117,7 @@ def flat_state(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
     return state
 
 
-def validate_state(state: np.ndarray, size: int) -> np.ndarray:
+def validate_state(state: npt.NDArray[np.float64], size: int) -> npt.NDArray[np.float64]:
     """A flat [time, qpos, qvel] vector of the expected size, finite, as floats."""
     state = np.asarray(state, dtype=float)
     if state.shape != (size,):

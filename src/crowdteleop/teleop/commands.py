@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.control.command import DeviceCommand
+from crowdteleop.recording.episode_file import CommandRecord
 from crowdteleop.teleop.protocol import ClutchEvent, GripperEvent, PoseCommand
 from crowdteleop.vocab import DeviceKind
 
@@ -36,8 +37,10 @@ class CommandBoard:
     """
 
     driver: Driver | None = None
-    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    quaternion: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0]))
+    position: npt.NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    quaternion: npt.NDArray[np.float64] = field(
+        default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0])
+    )
     engaged: bool = False
     gripper_closed: bool = False
     last_seq: int = -1
@@ -126,7 +129,7 @@ class CommandBoard:
             client_time_ms=self.last_client_time_ms,
         )
 
-    def raw_command(self) -> dict[str, Any]:
+    def raw_command(self) -> CommandRecord:
         """What the recorder stores for this step: the device's latest state as sent."""
         return {
             "seq": self.last_seq,

@@ -9,10 +9,11 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.teleoperator import TeleopStep
-from crowdteleop.recording.episode_file import StepRecord
+from crowdteleop.recording.episode_file import CommandRecord, StepRecord
 from crowdteleop.recording.metadata import EnvArgs, EpisodeMetadata
 from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.recording.stores import SavedWhen
@@ -148,9 +149,9 @@ def episode_metadata(
 
 def step_record(
     index: int,
-    state: np.ndarray,
+    state: npt.NDArray[np.float64],
     step: TeleopStep,
-    raw_command: dict[str, Any],
+    raw_command: CommandRecord,
     server_time: float,
     duration_s: float,
 ) -> StepRecord:

@@ -9,13 +9,13 @@ both sides share one definition. ``docs/protocol.md`` describes the channels and
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
 from crowdteleop.vocab import DeviceKind, Outcome
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION: Final = 1
 
 PeerRole = Literal["worker", "phone", "admin"]
 Channel = Literal["control", "events", "admin"]
@@ -283,9 +283,13 @@ ServerMessage = Annotated[
     Field(discriminator="type"),
 ]
 
-_CONTROL = TypeAdapter(ControlMessage)
-_EVENTS = TypeAdapter(EventMessage)
-_SERVER = TypeAdapter(ServerMessage)
+_CONTROL: TypeAdapter[ControlMessage] = TypeAdapter(ControlMessage)
+_EVENTS: TypeAdapter[EventMessage] = TypeAdapter(EventMessage)
+_SERVER: TypeAdapter[ServerMessage] = TypeAdapter(ServerMessage)
+_INBOUND: dict[str, TypeAdapter[ControlMessage] | TypeAdapter[EventMessage]] = {
+    "control": _CONTROL,
+    "events": _EVENTS,
+}
 
 
 class ProtocolError(ValueError):
@@ -300,7 +304,7 @@ def parse_inbound(channel: str, raw: str | bytes, max_bytes: int) -> BaseModel:
     """Validate one client message on `channel`; raise ProtocolError naming the problem."""
     if len(raw) > max_bytes:
         raise ProtocolError("too_large", f"message of {len(raw)} bytes exceeds {max_bytes}")
-    adapter = {"control": _CONTROL, "events": _EVENTS}.get(channel)
+    adapter = _INBOUND.get(channel)
     if adapter is None:
         raise ProtocolError("channel", f"clients may not send on channel {channel!r}")
     try:

@@ -10,16 +10,21 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, assert_never
+from typing import Any, TypeVar, TypeVarTuple, assert_never
 
 import numpy as np
+import numpy.typing as npt
 from av import VideoFrame
 
+from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.teleoperator import Teleoperator
+from crowdteleop.recording.episode_file import CommandRecord
 from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.sim.factory import make_simulation
+from crowdteleop.sim.interface import Simulation
 from crowdteleop.sim.types import ContactEvent, Pose, TaskProgress
 from crowdteleop.tasks import get_task
 from crowdteleop.teleop.commands import CommandBoard
@@ -37,6 +42,9 @@ from crowdteleop.vocab import Outcome
 log = logging.getLogger(__name__)
 
 HAPTIC_REPEAT_S = 0.25  # while a contact lasts, buzz again this often
+
+R = TypeVar("R")
+Args = TypeVarTuple("Args")
 
 
 @dataclass(frozen=True)
@@ -69,12 +77,12 @@ SessionRequest = ResetScene | StopSession | StartSession | EndEpisode
 class TickResult:
     """What one control step produced, for the peers."""
 
-    image: np.ndarray
+    image: npt.NDArray[np.uint8]
     image_changed: bool
     command_seq: int
     success: bool
     progress: TaskProgress | None
-    end_effector: np.ndarray
+    end_effector: npt.NDArray[np.float64]
     haptics: list[ContactEvent]
     privileged: dict[str, Any] | None = None
     step_index: int = 0
@@ -113,7 +121,7 @@ class TeleopSession:
         self._haptics = _HapticFilter()
         self._yuv = YuvConverter()
         self._seed = config.seed
-        self._last_image: np.ndarray | None = None
+        self._last_image: npt.NDArray[np.uint8] | None = None
         self._pending: list[SessionRequest] = []
         self._finished: list[FinishedEpisode] = []
         self.sim_errors = 0
@@ -127,7 +135,7 @@ class TeleopSession:
         await session._in_sim_thread(session._build)
         return session
 
-    async def _in_sim_thread(self, function: Any, *args: Any) -> Any:
+    async def _in_sim_thread(self, function: Callable[[*Args], R], *args: *Args) -> R:
         return await asyncio.get_running_loop().run_in_executor(self._executor, function, *args)
 
     def _build(self) -> None:
@@ -237,15 +245,16 @@ class TeleopSession:
             self._pending.append(ResetScene())
             return None
 
-    def _step(self, command: Any, raw: dict[str, Any], want_privileged: bool) -> TickResult:
+    def _step(
+        self, command: DeviceCommand, raw: CommandRecord, want_privileged: bool
+    ) -> TickResult:
         """Runs in the simulation thread."""
         sim = self.teleop.sim
-        recording = self.tracker.recording
-        state = sim.get_state() if recording else None
+        state = sim.get_state() if self.tracker.recording else None
         started_wall, started = time.time(), time.perf_counter()
         step = self.teleop.step(command)
         duration = time.perf_counter() - started
-        if recording:  # the recorder validates, converts and copies; nothing to do here
+        if state is not None:  # recording: the recorder validates, converts and copies
             outcome = self.tracker.record(
                 step_record(self.tracker.steps, state, step, raw, started_wall, duration)
             )
@@ -307,7 +316,7 @@ class TeleopSession:
         self._close_storage()
 
 
-def _privileged(sim: Any, hand: Pose) -> dict[str, Any]:
+def _privileged(sim: Simulation, hand: Pose) -> dict[str, Any]:
     def flat(pose: Pose) -> list[float]:
         return [*pose.position.tolist(), *pose.quaternion.tolist()]
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import aiortc.codecs.h264
 import aiortc.codecs.vpx
 import numpy as np
+import numpy.typing as npt
 from aiortc import MediaStreamTrack
 from av import VideoFrame
 from av.video.reformatter import VideoReformatter
@@ -27,10 +28,14 @@ def configure_encoder_bitrates(video: VideoConfig) -> None:
     estimate (REMB) arrives, with no per-connection option. One teleop server process serves
     one session, so the process-wide setting is the session's setting.
     """
-    module = aiortc.codecs.vpx if video.codec == "vp8" else aiortc.codecs.h264
-    module.DEFAULT_BITRATE = video.start_bitrate_bps
-    module.MIN_BITRATE = video.min_bitrate_bps
-    module.MAX_BITRATE = video.max_bitrate_bps
+    if video.codec == "vp8":
+        aiortc.codecs.vpx.DEFAULT_BITRATE = video.start_bitrate_bps
+        aiortc.codecs.vpx.MIN_BITRATE = video.min_bitrate_bps
+        aiortc.codecs.vpx.MAX_BITRATE = video.max_bitrate_bps
+    else:
+        aiortc.codecs.h264.DEFAULT_BITRATE = video.start_bitrate_bps
+        aiortc.codecs.h264.MIN_BITRATE = video.min_bitrate_bps
+        aiortc.codecs.h264.MAX_BITRATE = video.max_bitrate_bps
 
 
 class YuvConverter:
@@ -44,7 +49,7 @@ class YuvConverter:
     def __init__(self) -> None:
         self._reformatter = VideoReformatter()
 
-    def convert(self, image: np.ndarray) -> VideoFrame:
+    def convert(self, image: npt.NDArray[np.uint8]) -> VideoFrame:
         rgb = VideoFrame.from_ndarray(image, format="rgb24")
         return self._reformatter.reformat(rgb, format="yuv420p")
 

@@ -12,9 +12,8 @@ from scipy.spatial.transform import Rotation, Slerp
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.config import MappingConfig
 from crowdteleop.control.mapping import ClutchMapper
-from crowdteleop.control.scripted.plans import plan_for
+from crowdteleop.control.scripted.plans import ScriptedScene, plan_for
 from crowdteleop.control.scripted.waypoints import Waypoint
-from crowdteleop.sim.interface import Simulation
 from crowdteleop.sim.types import Pose
 
 
@@ -49,7 +48,7 @@ class ScriptedOperator:
 
     def __init__(
         self,
-        sim: Simulation,
+        sim: ScriptedScene,
         mapping: MappingConfig | None = None,
         style: OperatorStyle | None = None,
         seed: int | None = None,

@@ -4,24 +4,43 @@ later waypoints can depend on how the grasp actually went."""
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from typing import Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.control.scripted.waypoints import Waypoint, at, yaw_aligned, yaw_of
 from crowdteleop.errors import ConfigError
-from crowdteleop.sim.interface import Simulation
+from crowdteleop.sim.config import SimConfig
+from crowdteleop.sim.types import Pose, RobotState
 
-Plan = Callable[[Simulation], Iterator[Waypoint]]
+
+class ScriptedScene(Protocol):
+    """What a scripted operator and its plans read of a scene: a `Simulation`, or a bot's
+    `crowdteleop.client.bot.RemoteWorld`, fed by the server's privileged messages."""
+
+    @property
+    def config(self) -> SimConfig: ...
+
+    @property
+    def control_dt(self) -> float: ...
+
+    def robot_state(self) -> RobotState: ...
+
+    def object_poses(self) -> dict[str, Pose]: ...
+
+
+Plan = Callable[[ScriptedScene], Iterator[Waypoint]]
 
 HOVER_M = 0.10
 
 
-def _object_name(sim: Simulation) -> str:
+def _object_name(sim: ScriptedScene) -> str:
     return next(name for name in sim.object_poses() if "/" not in name and name != "table")
 
 
 def _pick(
-    sim: Simulation, grasp_frame: str, axis_yaw: float, period: float, grasp_depth: float = 0.0
+    sim: ScriptedScene, grasp_frame: str, axis_yaw: float, period: float, grasp_depth: float = 0.0
 ) -> Iterator[Waypoint]:
     """Hover over `grasp_frame`, descend with the fingers aligned, close, wait.
 
@@ -30,7 +49,7 @@ def _pick(
     start = sim.robot_state().end_effector
     rotation = yaw_aligned(start, axis_yaw, period)
 
-    def above() -> np.ndarray:
+    def above() -> npt.NDArray[np.float64]:
         return sim.object_poses()[grasp_frame].position + [0.0, 0.0, HOVER_M]
 
     yield Waypoint(at(above(), rotation), False, tolerance_m=0.02, label="hover")
@@ -40,7 +59,7 @@ def _pick(
     yield Waypoint(at(down, rotation), True, tolerance_m=0.02, dwell_s=0.5, label="grasp")
 
 
-def lift(sim: Simulation) -> Iterator[Waypoint]:
+def lift(sim: ScriptedScene) -> Iterator[Waypoint]:
     name = _object_name(sim)
     cube = sim.object_poses()[name]
     yield from _pick(sim, name, yaw_of(cube), np.pi / 2)
@@ -48,7 +67,7 @@ def lift(sim: Simulation) -> Iterator[Waypoint]:
     yield Waypoint(at(hand.position + [0, 0, 0.15], hand.rotation), True, label="lift")
 
 
-def pick_place(sim: Simulation) -> Iterator[Waypoint]:
+def pick_place(sim: ScriptedScene) -> Iterator[Waypoint]:
     name = _object_name(sim)
     yield from _pick(sim, name, 0.0, np.pi / 2, grasp_depth=0.01)
     hand = sim.robot_state().end_effector
@@ -63,7 +82,7 @@ def pick_place(sim: Simulation) -> Iterator[Waypoint]:
     yield Waypoint(at([*target[:2], carry_z], hand.rotation), False, 0.03, label="retreat")
 
 
-def nut_assembly(sim: Simulation) -> Iterator[Waypoint]:
+def nut_assembly(sim: ScriptedScene) -> Iterator[Waypoint]:
     name = _object_name(sim)
     nut = sim.object_poses()[name]
     # The handle sticks out along the nut's x axis: close the fingers across it.

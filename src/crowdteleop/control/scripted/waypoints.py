@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from crowdteleop.sim.types import Pose
@@ -36,5 +37,5 @@ def yaw_of(pose: Pose) -> float:
     return float(np.arctan2(x_axis[1], x_axis[0]))
 
 
-def at(position: np.ndarray, rotation: Rotation) -> Pose:
+def at(position: npt.ArrayLike, rotation: Rotation) -> Pose:
     return Pose(np.asarray(position, dtype=float), rotation.as_quat())

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.sim.fastrender.layers import (
     MOVING,
@@ -46,10 +47,12 @@ _REFLECTION = mujoco.mjtRndFlag.mjRND_REFLECTION
 class Background:
     """The static layer from one camera at one size, rows bottom-up as OpenGL returns them."""
 
-    rgb_bottom_up: np.ndarray  # (H, W, 3) uint8, multisampled when the GL allows
-    depth: np.ndarray  # (H, W) float32, MuJoCo's reversed depth: larger is nearer, 0 is empty
+    rgb_bottom_up: npt.NDArray[np.uint8]  # (H, W, 3), multisampled when the GL allows
+    depth: npt.NDArray[np.float32]  # (H, W), MuJoCo's reversed depth: larger is nearer, 0 is empty
     serial: int  # unique per drawing, so answers derived from it can be keyed on it
-    distance: np.ndarray | None = None  # (H, W) metres along the optical axis, made on demand
+    distance: npt.NDArray[np.float32] | None = (
+        None  # (H, W) metres along the optical axis, on demand
+    )
 
 
 class Compositor:
@@ -72,7 +75,7 @@ class Compositor:
         self.background_draws = 0  # counters for tests and benchmarks
         self.single_pass_frames = 0
         self.textures_parked = False  # set when textures were parked; the owner trims the heap
-        self._see_through_memo: tuple[tuple, bool] | None = None
+        self._see_through_memo: tuple[tuple[int, bytes, bytes, bytes], bool] | None = None
         self.set_layers(layers)
 
     def _make_context(self, shadows: bool) -> mujoco.MjrContext:
@@ -111,7 +114,7 @@ class Compositor:
         self._backgrounds.clear()
         self._see_through_memo = None
 
-    def frame(self, camera: int, width: int, height: int) -> np.ndarray:
+    def frame(self, camera: int, width: int, height: int) -> npt.NDArray[np.uint8]:
         """The picture from ``camera`` for the render model's current pose, rows top-down."""
         self._fit_buffer(width, height)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
@@ -146,7 +149,7 @@ class Compositor:
         option: mujoco.MjvOption,
         skybox: bool,
         reflection: bool = False,
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.float32]]:
         """Render one pass; colour and depth as OpenGL returns them (bottom row first)."""
         self._camera.fixedcamid = camera
         model, data = self._render.model, self._render.data
@@ -162,7 +165,7 @@ class Compositor:
         mujoco.mjr_readPixels(rgb, depth, viewport, self._context)
         return rgb, depth
 
-    def _single_pass(self, camera: int, width: int, height: int) -> np.ndarray:
+    def _single_pass(self, camera: int, width: int, height: int) -> npt.NDArray[np.uint8]:
         """Everything in one pass: the original picture less MSAA (and meshes simplified).
 
         Reflections stay on: without them the floor and the table's metal differ visibly
@@ -211,7 +214,7 @@ class Compositor:
         mujoco.mjr_resizeOffscreen(*self._buffer, self._context)
 
     # --- see-through moving parts ------------------------------------------------------------
-    def _distance(self, depth: np.ndarray) -> np.ndarray:
+    def _distance(self, depth: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
         """Metric distance along the optical axis from MuJoCo's reversed depth (as Renderer)."""
         model = self._render.model
         near = np.float32(model.vis.map.znear * model.stat.extent)
@@ -268,7 +271,11 @@ _CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1
 
 
 def may_show(
-    distance: np.ndarray, centres: np.ndarray, radii: np.ndarray, focal: float, near: float
+    distance: npt.NDArray[np.float32],
+    centres: npt.NDArray[np.float64],
+    radii: npt.NDArray[np.float64],
+    focal: float,
+    near: float,
 ) -> bool:
     """Whether any sphere (camera frame) could be seen in front of a background.
 

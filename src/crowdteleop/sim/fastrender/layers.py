@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 MOVING_SEE_THROUGH, STATIC_SEE_THROUGH, STATIC, MOVING, HIDDEN = 1, 2, 3, 4, 5
 SHOWN_BY_DEFAULT = np.array(mujoco.MjvOption().geomgroup, dtype=bool)  # groups 0-2
@@ -42,19 +43,19 @@ SITES_SHOWN_BY_DEFAULT = np.array(mujoco.MjvOption().sitegroup, dtype=bool)
 class Layers:
     """The layer of every geom and site, and the options that draw each pass."""
 
-    geom_layer: np.ndarray
-    site_layer: np.ndarray
+    geom_layer: npt.NDArray[np.int32]
+    site_layer: npt.NDArray[np.int32]
     composite_ok: bool
-    see_through_moving_geoms: np.ndarray  # geom ids
-    see_through_moving_sites: np.ndarray  # site ids
+    see_through_moving_geoms: npt.NDArray[np.intp]  # geom ids
+    see_through_moving_sites: npt.NDArray[np.intp]  # site ids
     shadows: bool = False  # an active light casts shadows (the GL context needs a shadow map)
 
     @classmethod
     def of(
         cls,
         model: mujoco.MjModel,
-        geom_group: np.ndarray,
-        site_group: np.ndarray,
+        geom_group: npt.NDArray[np.int32],
+        site_group: npt.NDArray[np.int32],
         hidden_geom_groups: tuple[int, ...],
     ) -> Layers:
         """Layers of ``model`` given its current colours (call again when they change).
@@ -106,7 +107,7 @@ class Layers:
         return option
 
 
-def moving_bodies(model: mujoco.MjModel) -> np.ndarray:
+def moving_bodies(model: mujoco.MjModel) -> npt.NDArray[np.bool_]:
     """Bodies that can move: a joint or a mocap body on the path to the world."""
     moving = np.zeros(model.nbody, dtype=bool)
     for body in range(1, model.nbody):  # parents come before children
@@ -126,7 +127,11 @@ def camera_is_static(model: mujoco.MjModel, camera: int) -> bool:
     return not moving_bodies(model)[body] and mode in fixed_modes
 
 
-def effective_alpha(rgba: np.ndarray, material: np.ndarray, mat_rgba: np.ndarray) -> np.ndarray:
+def effective_alpha(
+    rgba: npt.NDArray[np.float32],
+    material: npt.NDArray[np.int32],
+    mat_rgba: npt.NDArray[np.float32],
+) -> npt.NDArray[np.float32]:
     """The alpha MuJoCo draws a geom or site with: its own rgba wins unless it is the default
     grey, then its material's.
 
@@ -136,12 +141,14 @@ def effective_alpha(rgba: np.ndarray, material: np.ndarray, mat_rgba: np.ndarray
     half a dozen finely tessellated spheres) cost ~0.6 ms of a ~4 ms moving pass.
     Strictly between 0 and 1, MuJoCo blends (see-through parts).
     """
-    default = np.all(rgba == np.float32([0.5, 0.5, 0.5, 1.0]), axis=1)
+    default = np.all(rgba == np.array([0.5, 0.5, 0.5, 1.0], dtype=np.float32), axis=1)
     material_alpha = mat_rgba[np.maximum(material, 0), 3] if len(mat_rgba) else 1.0
     return np.where(default & (material >= 0), material_alpha, rgba[:, 3])
 
 
-def _assign(shown: np.ndarray, moving: np.ndarray, clear: np.ndarray) -> np.ndarray:
+def _assign(
+    shown: npt.NDArray[np.bool_], moving: npt.NDArray[np.bool_], clear: npt.NDArray[np.bool_]
+) -> npt.NDArray[np.int32]:
     layer = np.full(shown.shape, HIDDEN, dtype=np.int32)
     layer[shown & ~moving & ~clear] = STATIC
     layer[shown & ~moving & clear] = STATIC_SEE_THROUGH

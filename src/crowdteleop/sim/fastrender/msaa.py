@@ -24,6 +24,7 @@ from typing import Any
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +35,7 @@ def draw_multisampled(
     width: int,
     height: int,
     samples: int,
-) -> np.ndarray | None:
+) -> npt.NDArray[np.uint8] | None:
     """Run ``draw`` (an `mjr_render`) into a ``samples``x MSAA target; RGB, bottom row first.
 
     None when the GL cannot do it (the caller keeps its single-sampled picture).

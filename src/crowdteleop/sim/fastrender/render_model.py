@@ -21,6 +21,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.sim.fastrender.layers import Layers, moving_bodies
 from crowdteleop.sim.fastrender.simplify import (
@@ -54,10 +55,10 @@ class RenderModel:
     data: mujoco.MjData
     meshes: list[SimplifiedMesh] = field(default_factory=list)
     samples: int = 4  # MSAA samples of the original picture (the physics model's offsamples)
-    mirrored_geoms: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    mirrored_geoms: npt.NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, dtype=int))
     # Groups as compiled: the compositor reuses the group fields for its layers.
-    geom_group: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
-    site_group: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    geom_group: npt.NDArray[np.int32] = field(default_factory=lambda: np.zeros(0, dtype=int))
+    site_group: npt.NDArray[np.int32] = field(default_factory=lambda: np.zeros(0, dtype=int))
     _seen: dict[str, bytes] = field(default_factory=dict)  # physics fields at the last sync
 
     @classmethod
@@ -65,7 +66,7 @@ class RenderModel:
         cls,
         physics_model: mujoco.MjModel,
         physics_xml: str,
-        visible_geom: np.ndarray,
+        visible_geom: npt.NDArray[np.bool_],
         simplify: bool = True,
         params: SimplifyParams | None = None,
     ) -> RenderModel:
@@ -143,7 +144,7 @@ class RenderModel:
 
 
 def simplifiable_meshes(
-    model: mujoco.MjModel, visible_geom: np.ndarray, params: SimplifyParams
+    model: mujoco.MjModel, visible_geom: npt.NDArray[np.bool_], params: SimplifyParams
 ) -> set[str]:
     """Names of meshes worth simplifying: big, untextured, drawn only on moving bodies.
 

@@ -23,6 +23,7 @@ from collections import OrderedDict
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.errors import UnknownCameraError
 from crowdteleop.gl import render_backend_error
@@ -62,9 +63,9 @@ class FastSceneRenderer:
             physics_model, physics_xml, visible, simplify=simplify, params=simplify_params
         )
         self._lock = threading.Lock()  # frame cache and render model; taken before the GL lock
-        self._frames: OrderedDict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = (
-            OrderedDict()
-        )
+        self._frames: OrderedDict[
+            tuple[int, int, int], tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8]]
+        ] = OrderedDict()
         self.renders_performed = 0  # frames that needed GL work (cache misses)
         self._gl: SharedGLContext | None = SharedGLContext.acquire()
         try:
@@ -80,7 +81,7 @@ class FastSceneRenderer:
     # --- public ----------------------------------------------------------------------------
     def render(
         self, physics_data: mujoco.MjData, camera: str, width: int, height: int
-    ) -> np.ndarray:
+    ) -> npt.NDArray[np.uint8]:
         """The frame from ``camera`` for the state in ``physics_data`` (read, never written)."""
         if camera not in self._camera_ids:
             raise UnknownCameraError(
@@ -157,7 +158,7 @@ def _return_freed_heap() -> None:
             ctypes.CDLL(name).malloc_trim(0)
 
 
-def _pose_fingerprint(data: mujoco.MjData) -> np.ndarray:
+def _pose_fingerprint(data: mujoco.MjData) -> npt.NDArray[np.float64]:
     """Everything a picture depends on that changes while the model does not: the pose.
 
     Body, camera and light poses all follow from qpos and the mocap poses via kinematics.

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.sim.fastrender.cache import cache_dir, content_key, write_atomically
 
@@ -123,7 +124,7 @@ def _read_entry(source: Path, target: Path, keep: Path) -> SimplifiedMesh | None
 
 def _build(
     source: Path, scale: float, params: SimplifyParams
-) -> tuple[np.ndarray, np.ndarray, int, float, float] | None:
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int32], int, float, float] | None:
     """Smallest ratio of the ladder within tolerance: (vertices, faces, before, ratio, error).
 
     Binary search over the ladder (the error shrinks as the ratio grows, near enough): four or
@@ -138,7 +139,7 @@ def _build(
     original = meshes.current_mesh_id()
     faces_before = meshes.current_mesh().face_number()
     tolerance = params.tolerance_m / scale
-    best: tuple[np.ndarray, np.ndarray, int, float, float] | None = None
+    best: tuple[npt.NDArray[np.float64], npt.NDArray[np.int32], int, float, float] | None = None
     low, high = 0, len(params.ratios) - 1
     while low <= high:
         middle = (low + high) // 2
@@ -189,8 +190,8 @@ def _hausdorff(meshes: Any, pymeshlab: Any, first: int, second: int) -> float:
 
 
 def _obj_text(
-    vertices: np.ndarray,
-    faces: np.ndarray,
+    vertices: npt.NDArray[np.float64],
+    faces: npt.NDArray[np.int32],
     faces_before: int,
     ratio: float,
     error: float,

@@ -18,11 +18,12 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 
 def textures_used(
-    model: mujoco.MjModel, geoms: np.ndarray, sites: np.ndarray, tendons: bool
-) -> np.ndarray:
+    model: mujoco.MjModel, geoms: npt.NDArray[np.bool_], sites: npt.NDArray[np.bool_], tendons: bool
+) -> npt.NDArray[np.bool_]:
     """Which textures (bool per texture) the materials of these geoms / sites (masks) use;
     with ``tendons``, also those of every tendon's material."""
     materials = [model.geom_matid[geoms], model.site_matid[sites]]
@@ -50,7 +51,7 @@ class TextureResidency:
     def parked(self) -> frozenset[int]:
         return frozenset(self._parked)
 
-    def set_per_frame(self, used: np.ndarray) -> None:
+    def set_per_frame(self, used: npt.NDArray[np.bool_]) -> None:
         """The textures every frame samples (bool per texture); they are never parked."""
         self._per_frame = np.asarray(used, dtype=bool).copy()
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.errors import (
     ConfigError,
@@ -135,7 +136,7 @@ class MujocoSimulation:
             self._closed = True
 
     # --- stepping --------------------------------------------------------------------------
-    def step(self, action: np.ndarray) -> StepResult:
+    def step(self, action: npt.NDArray[np.float64]) -> StepResult:
         action = self.action_spec.validate(action)
         qdot, gripper = action[:-1], action[-1]
         data = self._data
@@ -157,10 +158,10 @@ class MujocoSimulation:
         return bool(cube_z > self._cube_rest_z + LIFT_SUCCESS_HEIGHT)
 
     # --- state -----------------------------------------------------------------------------
-    def get_state(self) -> np.ndarray:
+    def get_state(self) -> npt.NDArray[np.float64]:
         return flat_state(self._model, self._data)
 
-    def set_state(self, state: np.ndarray) -> None:
+    def set_state(self, state: npt.NDArray[np.float64]) -> None:
         nq, nv = self._model.nq, self._model.nv
         state = validate_state(state, 1 + nq + nv)
         data = self._data
@@ -171,7 +172,7 @@ class MujocoSimulation:
         mujoco.mj_forward(self._model, data)
 
     # --- observation -----------------------------------------------------------------------
-    def render(self, camera: str, width: int, height: int) -> np.ndarray:
+    def render(self, camera: str, width: int, height: int) -> npt.NDArray[np.uint8]:
         return self._renderer.render(self._data, camera, width, height)
 
     def contacts(self) -> list[ContactEvent]:
@@ -208,7 +209,7 @@ class MujocoSimulation:
             end_effector_velocity=self._site_velocity(),
         )
 
-    def _site_velocity(self) -> np.ndarray:
+    def _site_velocity(self) -> npt.NDArray[np.float64]:
         """(linear, angular) world-frame velocity of ``ee_site``; MuJoCo gives (angular, linear)."""
         angular_linear = np.zeros(6)
         mujoco.mj_objectVelocity(

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 from robosuite.utils.control_utils import opspace_matrices, orientation_error
 
 from crowdteleop.sim.robosuite_backend.fast_model import DAMPING_PREFIX, STIFFNESS_PREFIX
@@ -28,9 +29,9 @@ NULLSPACE_KV = 2.0 * np.sqrt(NULLSPACE_KP)
 class ArmLayout:
     """Where the arm lives in the model's arrays."""
 
-    qpos: np.ndarray
-    dofs: np.ndarray
-    motors: np.ndarray
+    qpos: npt.NDArray[np.intp]
+    dofs: npt.NDArray[np.intp]
+    motors: npt.NDArray[np.intp]
     ee_site: int
 
 
@@ -48,7 +49,9 @@ class FoldedArm:
         self._jacr = np.zeros((3, model.nv))
         self._mass = np.zeros((model.nv, model.nv))
 
-    def _actuators(self, prefix: str, count: int) -> tuple[np.ndarray, np.ndarray]:
+    def _actuators(
+        self, prefix: str, count: int
+    ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
         """(actuator ids, (count, count) addresses in ``wrap_prm`` of their tendons' joint
         coefficients: row k holds tendon k's), so one indexed write sets every tendon."""
         model = self._model
@@ -57,22 +60,28 @@ class FoldedArm:
         return ids, model.tendon_adr[tendons][:, None] + np.arange(count)[None, :]
 
     # --- the quantities robosuite's controllers read -----------------------------------
-    def mass_matrix(self, data: mujoco.MjData) -> np.ndarray:
+    def mass_matrix(self, data: mujoco.MjData) -> npt.NDArray[np.float64]:
         mujoco.mj_fullM(self._model, self._mass, data.qM)
         dofs = self.layout.dofs
-        return self._mass[np.ix_(dofs, dofs)]
+        mass: npt.NDArray[np.float64] = self._mass[np.ix_(dofs, dofs)]
+        return mass
 
-    def jacobians(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+    def jacobians(
+        self, data: mujoco.MjData
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         mujoco.mj_jacSite(self._model, data, self._jacp, self._jacr, self.layout.ee_site)
         return self._jacp[:, self.layout.dofs], self._jacr[:, self.layout.dofs]
 
-    def coriolis(self, data: mujoco.MjData) -> np.ndarray:
+    def coriolis(self, data: mujoco.MjData) -> npt.NDArray[np.float64]:
         """Bias forces robosuite compensates that MuJoCo's gravcomp does not (Coriolis etc.)."""
         dofs = self.layout.dofs
-        return data.qfrc_bias[dofs] - data.qfrc_gravcomp[dofs]
+        bias: npt.NDArray[np.float64] = data.qfrc_bias[dofs] - data.qfrc_gravcomp[dofs]
+        return bias
 
     # --- the two laws ------------------------------------------------------------------
-    def joint_servo(self, data: mujoco.MjData, goal: np.ndarray, kp: float, kd: float) -> None:
+    def joint_servo(
+        self, data: mujoco.MjData, goal: npt.NDArray[np.float64], kp: float, kd: float
+    ) -> None:
         """K = kp M, D = kd M: one eigen-decomposition of M serves both."""
         gains, vectors = decompose(self.mass_matrix(data))
         self.apply(data, self.coriolis(data), (kp * gains, vectors), (kd * gains, vectors), goal)
@@ -80,9 +89,9 @@ class FoldedArm:
     def osc(
         self,
         data: mujoco.MjData,
-        goal_position: np.ndarray,
-        goal_orientation: np.ndarray,
-        initial_joints: np.ndarray,
+        goal_position: npt.NDArray[np.float64],
+        goal_orientation: npt.NDArray[np.float64],
+        initial_joints: npt.NDArray[np.float64],
         kp: float,
         kd: float,
     ) -> None:
@@ -109,10 +118,10 @@ class FoldedArm:
     def apply(
         self,
         data: mujoco.MjData,
-        tau0: np.ndarray,
-        stiffness: np.ndarray | Basis,
-        damping: np.ndarray | Basis,
-        q_ref: np.ndarray,
+        tau0: npt.NDArray[np.float64],
+        stiffness: npt.NDArray[np.float64] | Basis,
+        damping: npt.NDArray[np.float64] | Basis,
+        q_ref: npt.NDArray[np.float64],
     ) -> None:
         """Write the law; K and D as symmetric matrices or already split (`decompose`)."""
         model = self._model
@@ -130,10 +139,12 @@ class FoldedArm:
         model.actuator_biasprm[actuators, 2] = -gains
 
 
-Basis = tuple[np.ndarray, np.ndarray]  # (gains >= 0, eigenvectors as columns)
+Basis = tuple[
+    npt.NDArray[np.float64], npt.NDArray[np.float64]
+]  # (gains >= 0, eigenvectors as columns)
 
 
-def decompose(matrix: np.ndarray) -> Basis:
+def decompose(matrix: npt.NDArray[np.float64]) -> Basis:
     """K = sum_k gains_k v_k v_k^T for a symmetric K; negative (round-off) gains clipped."""
     gains, vectors = np.linalg.eigh(0.5 * (matrix + matrix.T))
     return np.maximum(gains, 0.0), vectors

@@ -14,6 +14,7 @@ from typing import Any
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from crowdteleop.sim.robosuite_backend.fast_control import FoldedArm
@@ -31,10 +32,12 @@ class Gains:
 
     kp: float
     kd: float
-    output_max: np.ndarray  # action unit -> metres / radians (osc) or radians (joint servo)
+    output_max: npt.NDArray[
+        np.float64
+    ]  # action unit -> metres / radians (osc) or radians (joint servo)
 
 
-def finger_direction(gripper: Any) -> np.ndarray:
+def finger_direction(gripper: Any) -> npt.NDArray[np.float64]:
     """Each finger actuator's command when robosuite's gripper is fully closed (+1 / -1)."""
     saved = np.array(gripper.current_action, copy=True)
     try:
@@ -42,7 +45,8 @@ def finger_direction(gripper: Any) -> np.ndarray:
         command = saved
         for _ in range(int(2.0 / gripper.speed) + 2):
             command = gripper.format_action(np.array([1.0]))
-        return np.sign(command)
+        direction: npt.NDArray[np.float64] = np.sign(command)
+        return direction
     finally:
         gripper.current_action = saved
 
@@ -55,8 +59,8 @@ class FastStepper:
         mode: str,
         gains: Gains,
         base_body: int,
-        gripper_actuators: np.ndarray,
-        gripper_closed: np.ndarray,
+        gripper_actuators: npt.NDArray[np.intp],
+        gripper_closed: npt.NDArray[np.float64],
         control_dt: float,
     ) -> None:
         self._model = model
@@ -77,7 +81,7 @@ class FastStepper:
         """robosuite's OSC pulls the arm's null space toward the episode's first posture."""
         self.initial_joints = data.qpos[self.arm.layout.qpos].copy()
 
-    def step(self, data: mujoco.MjData, action: np.ndarray) -> None:
+    def step(self, data: mujoco.MjData, action: npt.NDArray[np.float64]) -> None:
         # Still asleep: the same positions, velocities and command as the step that slept last
         # decide the same way again, without recomputing anything.
         key = (data.qpos.tobytes(), data.qvel.tobytes(), action.tobytes())
@@ -118,7 +122,7 @@ class FastStepper:
         data.qacc_warmstart[:] = 0.0
         return bool(np.abs(data.qacc).max() < REST_ACCEL)
 
-    def _osc(self, data: mujoco.MjData, arm_action: np.ndarray) -> None:
+    def _osc(self, data: mujoco.MjData, arm_action: npt.NDArray[np.float64]) -> None:
         """robosuite's OSC_POSE delta goal, input in the base frame, 'achieved' update mode."""
         delta = arm_action * self.gains.output_max
         base = data.xmat[self._base_body].reshape(3, 3)

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import logging
 import os
+from typing import Any
 
 os.environ.setdefault("PYNPUT_BACKEND", "dummy")  # robosuite.devices wants an X display
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.errors import UnknownRobotError
 from crowdteleop.sim.config import SimConfig
@@ -91,7 +93,7 @@ class RobosuiteSimulation:
 
     # --- lifecycle -------------------------------------------------------------------------
     @property
-    def nullspace_posture(self) -> np.ndarray:
+    def nullspace_posture(self) -> npt.NDArray[np.float64]:
         """The joint posture robosuite's OSC pulls the null space toward: the episode's first.
         Replaying an episode in plain robosuite needs it (it is not in the state)."""
         return self._stepper.initial_joints.copy()
@@ -112,7 +114,7 @@ class RobosuiteSimulation:
         self._env.close()
 
     # --- stepping --------------------------------------------------------------------------
-    def step(self, action: np.ndarray) -> StepResult:
+    def step(self, action: npt.NDArray[np.float64]) -> StepResult:
         action = self.action_spec.validate(action)
         self._stepper.step(self._data, action)
         with tasks.success_checked_once(self._env):
@@ -125,17 +127,17 @@ class RobosuiteSimulation:
         return bool(self._env._check_success())
 
     # --- state -----------------------------------------------------------------------------
-    def get_state(self) -> np.ndarray:
+    def get_state(self) -> npt.NDArray[np.float64]:
         """[time, qpos, qvel], robosuite's flattened layout."""
         return flat_state(self._model, self._data)
 
-    def set_state(self, state: np.ndarray) -> None:
+    def set_state(self, state: npt.NDArray[np.float64]) -> None:
         state = validate_state(state, 1 + self._model.nq + self._model.nv)
         self._env.sim.set_state_from_flattened(state)
         self._env.sim.forward()
 
     # --- observation -----------------------------------------------------------------------
-    def render(self, camera: str, width: int, height: int) -> np.ndarray:
+    def render(self, camera: str, width: int, height: int) -> npt.NDArray[np.uint8]:
         return self._renderer.render(self._data, camera, width, height)
 
     def contacts(self) -> list[ContactEvent]:
@@ -160,7 +162,7 @@ class RobosuiteSimulation:
             end_effector_velocity=self._site_velocity(),
         )
 
-    def _site_velocity(self) -> np.ndarray:
+    def _site_velocity(self) -> npt.NDArray[np.float64]:
         rotational_linear = np.zeros(6)
         mujoco.mj_objectVelocity(
             self._model,
@@ -259,7 +261,7 @@ class RobosuiteSimulation:
         ids and numpy: robosuite's loops over the contacts in Python, name by name."""
         model, gripper = self._model, self._robot.gripper[self._arm]
 
-        def mask(names: list[str]) -> np.ndarray:
+        def mask(names: list[str]) -> npt.NDArray[np.bool_]:
             chosen = np.zeros(model.ngeom, dtype=bool)
             chosen[[model.geom(name).id for name in names]] = True
             return chosen
@@ -269,8 +271,8 @@ class RobosuiteSimulation:
         ]
         objects = {obj.name: mask(obj.contact_geoms) for obj in tasks.active_objects(self._env)}
 
-        def grasped(obj: object) -> bool:
-            geoms = objects[obj.name]  # type: ignore[attr-defined]
+        def grasped(obj: Any) -> bool:  # a robosuite object (untyped)
+            geoms = objects[obj.name]
             return all(touching(self._data, pad, geoms) for pad in pads)
 
         return grasped
