@@ -225,6 +225,10 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path, screenshots
                 )
                 results["completion_code"] = code_text
                 results["phone_haptics"] = await phone.evaluate("window.crowdteleop.haptics")
+                # every message each page sent or heard was checked against the served schema
+                results["schema_stats"] = [
+                    await tab.evaluate("crowdteleop.connection.stats") for tab in (page, phone)
+                ]
                 await admin.close()
 
                 # 6. The first worker is done; the waiting one is admitted.
@@ -270,6 +274,8 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path, screenshots
     assert "worker" in results["admin_sessions"] and "ready" in results["admin_sessions"]
     assert len(results["completion_code"]) >= 6
     assert results["phone_haptics"] > 0, "the phone buzzed when the gripper touched the cube"
+    for stats in results["schema_stats"]:
+        assert stats == {"refusedOutgoing": 0, "ignoredIncoming": 0}, "every message fit"
     assert results["second_admitted"]
     assert results["same_session"], "opening the link again finds the worker's robot"
     assert results["again_moved"][2] > 0.05, "the new tab's keys drive the arm"
