@@ -164,7 +164,7 @@ class TeleopSession:
         """Take a session's identity (a warm spare being handed to a worker): recordings from
         now on carry the new ids and go to the new directory."""
         self.config = config
-        self._close_storage()
+        self.storage.close()  # a spooled S3 store stops its upload thread
         self.storage = config.recording.open_storage()
         self.tracker.metadata = self.tracker.metadata.model_copy(
             update={"session_id": config.session_id, "worker_id": config.worker_id}
@@ -290,9 +290,6 @@ class TeleopSession:
         self.tracker.metadata = self.tracker.metadata.model_copy(update={"reset_seed": self._seed})
         self.board.release_clutch()
 
-    def _close_storage(self) -> None:
-        self.storage.close()  # a spooled S3 store stops its upload thread
-
     async def store(self, finished: FinishedEpisode, telemetry: dict[str, Any]) -> str | None:
         """Finalize and store an episode's recording in a worker thread."""
         storage = self.config.recording.storage
@@ -313,7 +310,7 @@ class TeleopSession:
             await self.store(finished, {})
         await self._in_sim_thread(self.teleop.sim.close)
         self._executor.shutdown(wait=True)
-        self._close_storage()
+        self.storage.close()  # a spooled S3 store stops its upload thread
 
 
 def _privileged(sim: Simulation, hand: Pose) -> dict[str, Any]:
