@@ -52,6 +52,8 @@ def test_kill_9_mid_episode_keeps_every_step_up_to_the_last_flush(tmp_path):
     sim = make_simulation(SimConfig(**partial.metadata["sim_config"]))
     try:
         sim.set_state(partial.states[0])
+        # the finger command robosuite's gripper ramps is state beside [time, qpos, qvel]
+        sim.set_controller_state(np.array(partial.metadata["controller_state_at_start"]))
         for state, action in zip(partial.states[1:], partial.actions[:-1], strict=True):
             sim.step(action)
             np.testing.assert_array_equal(sim.get_state(), state)

@@ -87,6 +87,8 @@ def test_a_bot_completes_lift_and_the_episode_replays_exactly(tmp_path):
     try:
         assert sim.mjcf_xml() == episode.model_xml, "the config rebuilds the recorded model"
         sim.set_state(episode.states[0])
+        # the finger command robosuite's gripper ramps is state beside [time, qpos, qvel]
+        sim.set_controller_state(np.array(episode.metadata["controller_state_at_start"]))
         for state, action in zip(episode.states[1:], episode.actions[:-1], strict=True):
             sim.step(action)
             np.testing.assert_array_equal(sim.get_state(), state)

@@ -2,10 +2,11 @@
 
 Layout (robosuite's demo.hdf5 as extended by robomimic; docs/dataset.md): ``data`` attrs
 ``env_args`` (JSON) and ``total``; ``data/demo_<k>`` (k from 1, oldest first) with ``states``,
-``actions``, ``rewards``, ``dones`` and attrs ``model_file``, ``num_samples``, plus our
-metadata as attributes; ``mask/<filter key>`` lists of demo names: ``train`` / ``valid``
-(90/10, seeded), ``interface_<x>``, ``worker_<x>``, ``network_<x>``, ``fastest_<N>``,
-``replay_ok``.
+``actions``, ``rewards``, ``dones``, ``obs/`` and ``next_obs/`` (robosuite's observation keys,
+``--obs``), ``actions_abs`` (absolute end-effector targets), ``controller_states`` and attrs
+``model_file``, ``num_samples``, plus our metadata as attributes; ``mask/<filter key>``
+lists of demo names: ``train`` / ``valid`` (90/10, seeded), ``interface_<x>``,
+``worker_<x>``, ``network_<x>``, ``fastest_<N>``, ``replay_ok``.
 
 Every input is read and checked before anything is written, and the output appears under its
 name only when whole (temporary file, fsync, rename): a bad input leaves an existing dataset
@@ -27,7 +28,16 @@ from typing import Any
 import h5py
 import numpy as np
 
+from crowdteleop.dataset.absolute import AbsoluteTargets, absolute_controller_configs
+from crowdteleop.dataset.env_meta import dataset_env_args, env_info
 from crowdteleop.dataset.files import DATASET_FORMAT, DatasetError, DemoSummary
+from crowdteleop.dataset.observations import (
+    LOW_DIM,
+    ObsSpec,
+    observe_demo,
+    parse_obs,
+    write_demo_pass,
+)
 from crowdteleop.recording.episode_file import DEMO, CorruptEpisodeError, Episode, read_episode
 from crowdteleop.recording.metadata import EpisodeMetadata
 from crowdteleop.recording.storage import fsync_directory
@@ -45,6 +55,23 @@ COPIED = (
     "commands",
 )
 DEFAULT_DRIFT_TOLERANCE = 1e-6  # max |state error| of action replay in the recording simulator
+
+
+DEFAULT_OBS = parse_obs([LOW_DIM])
+
+
+@dataclass
+class Work:
+    """Progress over the build's passes, in demo-steps."""
+
+    progress: Callable[[int, int], None] | None
+    total: int
+    done: int = 0
+
+    def add(self, steps: int) -> None:
+        self.done += steps
+        if self.progress is not None:
+            self.progress(min(self.done, self.total), self.total)
 
 
 @dataclass
@@ -152,9 +179,11 @@ def build_dataset(
     overwrite: bool = False,
     drift_tolerance: float | None = DEFAULT_DRIFT_TOLERANCE,
     progress: Callable[[int, int], None] | None = None,
+    obs: ObsSpec = DEFAULT_OBS,
 ) -> BuildReport:
     """Assemble episode files into one dataset file; ``drift_tolerance`` None skips the
-    action-replay check (otherwise demos beyond it are flagged, not dropped)."""
+    action-replay check (otherwise demos beyond it are flagged, not dropped); ``obs`` says
+    which observations to compute from the states (robosuite's low-dim keys by default)."""
     started = time.perf_counter()
     output = Path(output)
     if output.exists() and not overwrite:
@@ -178,14 +207,15 @@ def build_dataset(
         )
     report = BuildReport(output=output, skipped=skipped)
     drifts: list[float | None] = [None] * len(chosen)
+    steps = sum(ep.steps for _, ep in chosen)
+    work = Work(progress, steps * (2 if drift_tolerance is not None else 1))
     if drift_tolerance is not None:
         from crowdteleop.dataset.replay import ReplayChecker
 
         with ReplayChecker() as checker:
             for i, (_, episode) in enumerate(chosen):
                 drifts[i] = checker.action_drift(episode).max_state_error
-                if progress is not None:
-                    progress(i + 1, 2 * len(chosen))
+                work.add(episode.steps)
     report.demos = [summarize(f"demo_{i + 1}", ep, drifts[i]) for i, (_, ep) in enumerate(chosen)]
     report.flagged = [
         d.name
@@ -196,7 +226,7 @@ def build_dataset(
     output.parent.mkdir(parents=True, exist_ok=True)
     try:
         with h5py.File(tmp, "w") as file:
-            _write(file, chosen, report, fastest, valid_fraction, seed, drift_tolerance, progress)
+            _write(file, chosen, report, fastest, valid_fraction, seed, drift_tolerance, work, obs)
         with open(tmp, "rb") as handle:
             os.fsync(handle.fileno())
         os.replace(tmp, output)
@@ -215,10 +245,13 @@ def _write(
     valid_fraction: float,
     seed: int,
     drift_tolerance: float | None,
-    progress: Callable[[int, int], None] | None,
+    work: Work,
+    obs: ObsSpec,
 ) -> None:
-    first = chosen[0][1]
-    env_args = first.env_args or {}
+    from crowdteleop.dataset.replay import ReplayChecker, demo_of_episode
+
+    first = demo_of_episode(chosen[0][1])
+    env_args = dataset_env_args(first, obs)
     versions = runtime_versions()
     now = time.localtime()
     file.attrs.update(format=DATASET_FORMAT, schema_version=SCHEMA_VERSION)
@@ -230,14 +263,39 @@ def _write(
         time=time.strftime("%H:%M:%S", now),
         repository_version=versions.get("robosuite", "unknown"),
         env=env_args.get("env_name", ""),
-        env_info=json.dumps(env_args.get("env_kwargs", {})),
+        env_info=json.dumps(env_info(env_args)),
         schema_version=SCHEMA_VERSION,
         platform_version=versions.get("crowdteleop", "unknown"),
         built_with=json.dumps(versions),
         built_at=time.time(),
         drift_tolerance=-1.0 if drift_tolerance is None else drift_tolerance,
     )
-    for i, ((path, episode), demo) in enumerate(zip(chosen, report.demos, strict=True)):
+    kwargs = env_args.get("env_kwargs", {})
+    if "controller_configs" in kwargs:
+        data.attrs["actions_abs_controller_configs"] = json.dumps(
+            absolute_controller_configs(kwargs["controller_configs"])
+        )
+    checker = ReplayChecker()
+    try:
+        _write_demos(data, chosen, report, checker, work, obs, kwargs)
+    finally:
+        checker.close()
+    _write_masks(file, report.demos, report.flagged, fastest, valid_fraction, seed)
+
+
+def _write_demos(
+    data: h5py.Group,
+    chosen: list[tuple[Path, Episode]],
+    report: BuildReport,
+    checker: Any,
+    work: Work,
+    obs: ObsSpec,
+    env_kwargs: dict[str, Any],
+) -> None:
+    from crowdteleop.dataset.replay import demo_of_episode
+
+    arm_config = env_kwargs.get("controller_configs", {}).get("body_parts", {}).get("right")
+    for (path, episode), demo in zip(chosen, report.demos, strict=True):
         with h5py.File(path, "r") as source:
             for name in COPIED:
                 if name in source[DEMO]:
@@ -271,9 +329,15 @@ def _write(
             action_replay_drift=-1.0 if demo.drift is None else demo.drift,
             action_replay_flagged=demo.name in report.flagged,
         )
-        if progress is not None:
-            progress(len(chosen) + i + 1, 2 * len(chosen))
-    _write_masks(file, report.demos, report.flagged, fastest, valid_fraction, seed)
+        replayable = demo_of_episode(episode)
+        computed = observe_demo(checker, replayable, obs, lambda: work.add(1))
+        absolute = None
+        if arm_config is not None:
+            sim = checker.simulation(replayable)
+            absolute = AbsoluteTargets(sim.kinematics(), arm_config).of(
+                replayable.states, replayable.actions
+            )
+        write_demo_pass(group, computed, absolute)
 
 
 def _write_masks(

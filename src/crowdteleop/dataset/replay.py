@@ -38,6 +38,7 @@ class Demo:
     actions: npt.NDArray[np.float64]
     model_xml: str
     metadata: dict[str, Any]
+    env_args: dict[str, Any] | None = None  # robomimic's, as the file recorded them
 
     @functools.cached_property
     def info(self) -> EpisodeMetadata:
@@ -62,6 +63,7 @@ class RobosuiteDrift:
     per_step_max_m: float
     open_loop_max_m: float  # all actions from the first state: the playback complaint
     open_loop_final_m: float
+    open_loop_at_m: dict[int, float]  # steps -> hand error after that many open-loop steps
 
 
 @dataclass(frozen=True)
@@ -82,7 +84,7 @@ def load_demo(path: Path, demo: str | None = None) -> Demo:
     except CorruptEpisodeError:
         episode = None
     if episode is not None:
-        return _demo_of_episode(episode)
+        return demo_of_episode(episode)
     with open_dataset(path) as file:
         names = sorted(file["data"], key=lambda n: int(n.split("_")[-1]))
         name = demo or (names[0] if names else "")
@@ -95,13 +97,37 @@ def load_demo(path: Path, demo: str | None = None) -> Demo:
             actions=group["actions"][()],
             model_xml=str(group.attrs["model_file"]),
             metadata=json.loads(group.attrs["metadata"]),
+            env_args=json.loads(file["data"].attrs["env_args"]),
         )
 
 
-def _demo_of_episode(episode: Episode) -> Demo:
+def demo_of_episode(episode: Episode) -> Demo:
     if episode.model_xml is None:
         raise DatasetError(f"episode {episode.episode_id} has no model_file")
-    return Demo("demo_0", episode.states, episode.actions, episode.model_xml, episode.metadata)
+    return Demo(
+        "demo_0",
+        episode.states,
+        episode.actions,
+        episode.model_xml,
+        episode.metadata,
+        episode.env_args,
+    )
+
+
+def recorded_env_args(demo: Demo) -> dict[str, Any]:
+    """robomimic's ``env_args`` for a demo, derived from its recorded ``sim_config``."""
+    from crowdteleop.sim import SimConfig
+    from crowdteleop.teleop.episode import env_args
+
+    return env_args(SimConfig(**recorded_sim_config(demo))).model_dump(mode="json")
+
+
+def recorded_sim_config(demo: Demo) -> dict[str, Any]:
+    """The demo's ``sim_config`` as recorded; files made before the finger ramp existed get
+    ``gripper_ramp`` False (their fingers followed each action directly)."""
+    if not demo.info.sim_config:
+        raise DatasetError(f"{demo.name} has no sim_config: it cannot be re-simulated")
+    return {"gripper_ramp": False} | demo.info.sim_config
 
 
 class ReplayChecker:
@@ -130,9 +156,7 @@ class ReplayChecker:
         """The recording's simulation, checked to hold the recorded model."""
         from crowdteleop.sim import SimConfig, make_simulation
 
-        raw = demo.info.sim_config
-        if not raw:
-            raise DatasetError(f"{demo.name} has no sim_config: it cannot be re-simulated")
+        raw = recorded_sim_config(demo)
         key = json.dumps(raw, sort_keys=True)
         if key not in self._sims:
             self._sims[key] = make_simulation(SimConfig(**raw))
@@ -156,10 +180,13 @@ class ReplayChecker:
         if seed is not None:
             sim.reset(seed=seed)
         sim.set_state(demo.states[0])
+        start = demo.info.controller_state_at_start
+        if start is not None:
+            sim.set_controller_state(np.array(start, dtype=float))
         return sim
 
     def action_drift(self, source: Demo | Episode) -> DriftResult:
-        demo = source if isinstance(source, Demo) else _demo_of_episode(source)
+        demo = source if isinstance(source, Demo) else demo_of_episode(source)
         sim = self.start(demo)
         errors, qpos_errors = [], []
         n_qpos = (demo.states.shape[1] - 1) // 2 + 1  # [time, qpos, qvel]: qpos may be longer
@@ -175,39 +202,49 @@ class ReplayChecker:
             max_qpos_error=max(qpos_errors, default=0.0),
         )
 
-    def robosuite_drift(self, demo: Demo) -> RobosuiteDrift | None:
-        """Action replay in plain robosuite, for ``osc-pose`` demos (None for others: robosuite
-        has no controller that reads our joint-velocity actions the way our servo does)."""
-        if demo.info.action_mode != "osc-pose":
-            return None
+    def robosuite_drift(
+        self, demo: Demo, env_args: dict[str, Any] | None = None
+    ) -> RobosuiteDrift:
+        """Action replay in plain robosuite rebuilt from ``env_args`` (default: the demo's
+        file's), per step from each recorded state and open loop from the first, against our
+        hand. Files recorded before ``env_args`` named the controller get it from their
+        ``sim_config``."""
         from crowdteleop.dataset.robosuite_replay import RobosuiteReplayer
+
+        env_args = env_args or demo.env_args or {}
+        if "controller_configs" not in env_args.get("env_kwargs", {}):
+            env_args = recorded_env_args(demo)
 
         sim = self.start(demo)
         initial_joints = sim.robot_state().joint_positions.copy()
-        ours = []
+        controller = sim.controller_state()
+        ours, commands = [], []
         for state, action in zip(demo.states, demo.actions, strict=True):
             sim.set_state(state)
+            sim.set_controller_state(controller)
+            commands.append(float(controller[0]) if controller.size else 0.0)
             sim.step(action)
+            controller = sim.controller_state()
             ours.append(sim.robot_state().end_effector.position.copy())
         replayer = RobosuiteReplayer(
-            demo.info.task,
-            demo.model_xml,
-            demo.info.robot,
-            demo.info.control_hz,
+            env_args["env_name"], env_args.get("env_kwargs", {}), demo.model_xml
         )
         try:
-            per_step = replayer.per_step(list(demo.states), demo.actions, initial_joints)
-            open_loop = replayer.open_loop(demo.states[0], demo.actions, initial_joints)
+            per_step = replayer.per_step(list(demo.states), demo.actions, initial_joints, commands)
+            open_loop = replayer.open_loop(
+                demo.states[0], demo.actions, initial_joints, commands[0]
+            )
         finally:
             replayer.close()
-        step_error = np.linalg.norm(np.array(ours) - per_step, axis=1)
-        open_error = np.linalg.norm(np.array(ours) - open_loop, axis=1)
+        step_error = np.linalg.norm(np.array(ours) - per_step.hands, axis=1)
+        open_error = np.linalg.norm(np.array(ours) - open_loop.hands, axis=1)
         return RobosuiteDrift(
             steps=len(demo.actions),
             per_step_median_m=float(np.median(step_error)),
             per_step_max_m=float(step_error.max()),
             open_loop_max_m=float(open_error.max()),
             open_loop_final_m=float(open_error[-1]),
+            open_loop_at_m={n: float(open_error[n - 1]) for n in (5, 20, 40) if n <= len(ours)},
         )
 
     def replay(
@@ -223,6 +260,7 @@ class ReplayChecker:
         from crowdteleop.dataset.video import Mp4Writer
 
         sim = self.start(demo)
+        controller = sim.controller_state()
         camera = camera or demo.info.camera
         state_exact = step_exact = True
         max_step_error = 0.0
@@ -238,7 +276,9 @@ class ReplayChecker:
                     writer.write(sim.render(camera, width, height))
                     frames += 1
                 if i + 1 < len(demo.states):
+                    sim.set_controller_state(controller)
                     sim.step(demo.actions[i])
+                    controller = sim.controller_state()
                     error = float(np.abs(sim.get_state() - demo.states[i + 1]).max())
                     max_step_error = max(max_step_error, error)
                     step_exact &= error == 0.0

@@ -86,9 +86,15 @@ def record_scripted_episode(
     sim, teleop, control = rig.sim, rig.teleop, rig.control
     extra = dict(extra_metadata or {})
     # reset_seed: replaying OSC actions needs the episode's reset (its null-space posture)
-    metadata = rig.metadata.model_copy(update={"reset_seed": seed}).to_record()
-    recorder = EpisodeRecorder(directory, episode_id, metadata)
     operator = ScriptedOperator(sim, control.mapping, seed=seed)
+    teleop.reset(seed)  # as run_episode will: the controller state below is the reset's
+    metadata = rig.metadata.model_copy(
+        update={
+            "reset_seed": seed,
+            "controller_state_at_start": [float(v) for v in sim.controller_state()],
+        }
+    ).to_record()
+    recorder = EpisodeRecorder(directory, episode_id, metadata)
     step_once = teleop.step
     timing = {"step": 0.0, "record": 0.0, "step_cpu": 0.0, "record_cpu": 0.0}
 

@@ -45,6 +45,11 @@ class EpisodeMetadata(BaseModel):
     env_args: EnvArgs | None = None
     episode: int | None = Field(None, description="1-based number within its session")
     interface: str | None = Field(None, description="the device the worker used, if known")
+    controller_state_at_start: list[float] | None = Field(
+        None,
+        description="the simulation's controller state (robosuite's ramped finger command) "
+        "before the first step: with the states and actions it restores every step exactly",
+    )
 
     def to_record(self) -> dict[str, Any]:
         """The JSON-ready dict the recorder stores (unset optional fields left out)."""

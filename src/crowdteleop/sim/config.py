@@ -18,6 +18,12 @@ class SimConfig(BaseModel):
     action_mode: ActionMode = "joint-velocity"
     control_hz: float = Field(20.0, gt=0, le=500, description="control steps per simulated second")
     max_joint_speed: float = Field(1.5, gt=0, le=10, description="rad/s, joint-velocity mode")
+    gripper_ramp: bool = Field(
+        True,
+        description="robosuite's finger command ramp (the gripper's speed per step, kept between "
+        "steps), so recorded gripper actions act in plain robosuite as they did here; False "
+        "commands the fingers directly, as recordings made before 2026-12-02 were simulated",
+    )
     model_seed: int = Field(
         0,
         ge=0,

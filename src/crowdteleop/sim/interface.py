@@ -52,6 +52,20 @@ class Simulation(Protocol):
 
     def set_state(self, state: npt.NDArray[np.float64]) -> None: ...
 
+    def controller_state(self) -> npt.NDArray[np.float64]:
+        """What the next step depends on beyond [time, qpos, qvel] and the action: robosuite's
+        gripper keeps its finger command between steps and ramps it (shape (1,)); a backend
+        without such memory returns shape (0,). Restoring a step exactly sets both."""
+        ...
+
+    def set_controller_state(self, value: npt.NDArray[np.float64]) -> None: ...
+
+    def observations(self) -> dict[str, npt.NDArray[np.float64]]:
+        """Low-dimensional observations under robomimic's keys (``robot0_eef_pos``,
+        ``robot0_eef_quat`` (x, y, z, w), ``robot0_gripper_qpos``, ``object``...), computed
+        as plain robosuite computes them, for datasets and policies."""
+        ...
+
     def success(self) -> bool: ...
 
     def contacts(self) -> list[ContactEvent]: ...

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -133,3 +135,19 @@ class StepResult:
     success: bool
     contacts: list[ContactEvent] = field(default_factory=list)
     progress: TaskProgress | None = None
+
+
+def low_dim_keys(
+    observables: Mapping[str, Any], robot_prefix: str = "robot0_"
+) -> dict[str, npt.NDArray[np.float64]]:
+    """robosuite's observables renamed as robomimic's environment wrapper does: ``object``
+    (robosuite's ``object-state``) and every ``robot0_*`` key except the concatenated
+    ``proprio-state``; images are left out. robomimic's stock configs ask for these keys."""
+    keys: dict[str, npt.NDArray[np.float64]] = {}
+    if "object-state" in observables:
+        keys["object"] = np.array(observables["object-state"], dtype=np.float64)
+    for key, value in observables.items():
+        array = np.asarray(value)
+        if key.startswith(robot_prefix) and not key.endswith("proprio-state") and array.ndim < 2:
+            keys[key] = np.array(array, dtype=np.float64).reshape(-1)
+    return keys

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import uuid
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -70,8 +71,14 @@ class EpisodeTracker:
     def recording(self) -> bool:
         return self.state == "running"
 
-    def maybe_start(self, engaged: bool, device: DeviceKind | None = None) -> bool:
-        """Start an episode if the session is ready and the clutch is held."""
+    def maybe_start(
+        self,
+        engaged: bool,
+        device: DeviceKind | None = None,
+        controller_state: Sequence[float] = (),
+    ) -> bool:
+        """Start an episode if the session is ready and the clutch is held; the simulation's
+        controller state at that moment goes into the episode's metadata."""
         if self.state != "ready" or not engaged:
             return False
         self._device = device
@@ -83,7 +90,12 @@ class EpisodeTracker:
         self._recorder = EpisodeRecorder(
             self.recordings,
             self._episode_id,
-            self.metadata.model_copy(update={"episode": self.number}).to_record(),
+            self.metadata.model_copy(
+                update={
+                    "episode": self.number,
+                    "controller_state_at_start": [float(v) for v in controller_state],
+                }
+            ).to_record(),
             flush_interval_s=self.flush_interval_s,
         )
         self.state = "running"
@@ -127,7 +139,6 @@ def episode_metadata(
 ) -> EpisodeMetadata:
     """How an episode on this simulation is made: written by the teleop session and the
     scripted rig alike, so tests and benchmarks record the very files workers produce."""
-    task = get_task(sim.task)
     return EpisodeMetadata(
         session_id=session_id,
         worker_id=worker_id,
@@ -141,9 +152,22 @@ def episode_metadata(
         control_config=control.model_dump(mode="json"),
         model_xml=model_xml,
         reset_seed=reset_seed,
-        env_args=EnvArgs(
-            env_name=task.env_name, env_kwargs={"robots": [sim.robot], **task.env_kwargs}
-        ),
+        env_args=env_args(sim),
+    )
+
+
+def env_args(sim: SimConfig) -> EnvArgs:
+    """robomimic's ``env_args``: plain robosuite rebuilds scene, robot and controller from it
+    (the scene of a pure-MuJoCo task names no robosuite environment robosuite could make)."""
+    task = get_task(sim.task)
+    if task.backend != "robosuite":
+        return EnvArgs(env_name=task.env_name, env_kwargs={"robots": [sim.robot]})
+    from crowdteleop.sim.robosuite_backend.controllers import robosuite_env_kwargs
+
+    return EnvArgs(
+        env_name=task.env_name,
+        env_version=runtime_versions().get("robosuite", "unknown"),
+        env_kwargs=robosuite_env_kwargs(sim),
     )
 
 

@@ -235,7 +235,11 @@ class TeleopSession:
         command = self.board.command()
         raw = self.board.raw_command()
         driver = self.board.driver
-        self.tracker.maybe_start(command.engaged, driver.device if driver else None)
+        self.tracker.maybe_start(
+            command.engaged,
+            driver.device if driver else None,
+            self.teleop.sim.controller_state().tolist(),  # the sim thread is idle between ticks
+        )
         try:
             return await self._in_sim_thread(self._step, command, raw, want_privileged)
         except Exception:  # a simulation failure ends the episode; the session lives on

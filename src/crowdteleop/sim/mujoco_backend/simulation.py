@@ -13,6 +13,7 @@ import numpy.typing as npt
 
 from crowdteleop.errors import (
     ConfigError,
+    InvalidStateError,
     UnknownRobotError,
 )
 from crowdteleop.sim.config import SimConfig
@@ -94,6 +95,7 @@ class MujocoSimulation:
         )
         fingers = [model.joint(name).id for name in scene.FINGER_JOINTS]
         self._finger_qpos = model.jnt_qposadr[fingers]
+        self._finger_dofs = model.jnt_dofadr[fingers]
         self._finger_ctrl = np.array(
             [model.actuator(f"{name}_position").id for name in scene.FINGER_JOINTS]
         )
@@ -170,6 +172,33 @@ class MujocoSimulation:
         data.qvel[:] = state[1 + nq :]
         data.act[self._servo_act] = data.qpos[self._arm_qpos]
         mujoco.mj_forward(self._model, data)
+
+    def controller_state(self) -> npt.NDArray[np.float64]:
+        """None: the fingers follow each action directly (shape (0,))."""
+        return np.zeros(0)
+
+    def set_controller_state(self, value: npt.NDArray[np.float64]) -> None:
+        if np.asarray(value).size != 0:
+            raise InvalidStateError("this scene's controller keeps no state between steps")
+
+    def observations(self) -> dict[str, npt.NDArray[np.float64]]:
+        """robosuite Lift's keys for this scene (object: cube position, quaternion (x, y, z,
+        w), cube minus hand position)."""
+        data, robot = self._data, self.robot_state()
+        cube = data.qpos[self._cube_qpos : self._cube_qpos + 7]
+        cube_quat = np.array([cube[4], cube[5], cube[6], cube[3]])
+        hand = robot.end_effector.position
+        return {
+            "object": np.concatenate([cube[:3], cube_quat, cube[:3] - hand]),
+            "robot0_joint_pos": robot.joint_positions,
+            "robot0_joint_pos_cos": np.cos(robot.joint_positions),
+            "robot0_joint_pos_sin": np.sin(robot.joint_positions),
+            "robot0_joint_vel": robot.joint_velocities,
+            "robot0_eef_pos": hand.copy(),
+            "robot0_eef_quat": robot.end_effector.quaternion.copy(),
+            "robot0_gripper_qpos": data.qpos[self._finger_qpos].copy(),
+            "robot0_gripper_qvel": data.qvel[self._finger_dofs].copy(),
+        }
 
     # --- observation -----------------------------------------------------------------------
     def render(self, camera: str, width: int, height: int) -> npt.NDArray[np.uint8]:

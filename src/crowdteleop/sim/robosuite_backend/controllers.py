@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 from crowdteleop.sim.config import SimConfig
+from crowdteleop.tasks import get_task
 
 
 def arm_controller_config(config: SimConfig, control_dt: float) -> dict[str, Any]:
@@ -68,3 +69,14 @@ def arm_controller_config(config: SimConfig, control_dt: float) -> dict[str, Any
 def composite_controller_config(config: SimConfig, control_dt: float) -> dict[str, Any]:
     """robosuite's BASIC composite controller with our arm part on the right arm."""
     return {"type": "BASIC", "body_parts": {"right": arm_controller_config(config, control_dt)}}
+
+
+def robosuite_env_kwargs(config: SimConfig) -> dict[str, Any]:
+    """What `robosuite.make(env_name, **kwargs)` needs to rebuild this simulation's scene,
+    robot and controller in plain robosuite (robomimic's ``env_args["env_kwargs"]``)."""
+    return {
+        "robots": [config.robot],
+        "controller_configs": composite_controller_config(config, 1.0 / config.control_hz),
+        "control_freq": config.control_hz,
+        **get_task(config.task).env_kwargs,
+    }

@@ -2,9 +2,12 @@
 
 Arm: `FoldedArm` turns the action into actuator settings once; MuJoCo then runs all substeps
 with `mj_step(model, data, nstep)`. Gripper: robosuite's GRIP mapping (actuator range centre
-plus half-range times the finger command), but stateless: robosuite ramps its finger command by
-0.2 per step and keeps it between steps, a hidden state that a restored [time, qpos, qvel]
-cannot carry; we command the action's value directly.
+plus half-range times the finger command) with robosuite's ramp: the command moves by the
+gripper's ``speed`` (0.2 for Sawyer's and Panda's) toward the sign of each action and is kept
+between steps, as robosuite's gripper models do, so a recorded gripper action closes the fingers
+as fast in plain robosuite as it did here. The ramp is state beside [time, qpos, qvel]
+(`FastStepper.gripper_command`); restoring a step exactly needs both. ``gripper_ramp=False``
+commands the action's value directly (how recordings made before 2026-12-02 were simulated).
 """
 
 from __future__ import annotations
@@ -62,6 +65,7 @@ class FastStepper:
         gripper_actuators: npt.NDArray[np.intp],
         gripper_closed: npt.NDArray[np.float64],
         control_dt: float,
+        gripper_speed: float | None,
     ) -> None:
         self._model = model
         self.arm = arm
@@ -72,23 +76,37 @@ class FastStepper:
         low, high = model.actuator_ctrlrange[gripper_actuators].T
         self._gripper_centre, self._gripper_half = (high + low) / 2, (high - low) / 2
         self._gripper_closed = gripper_closed
+        self._gripper_speed = gripper_speed  # None: no ramp, the action commands the fingers
+        self.gripper_command = 0.0  # robosuite's ramped finger command in [-1, 1]
         self.substeps = max(1, round(control_dt / model.opt.timestep))
         self.slept_steps = 0
         self.initial_joints = np.zeros(len(arm.layout.qpos))
-        self._asleep_at: tuple[bytes, bytes, bytes] | None = None
+        self._asleep_at: tuple[bytes, bytes, bytes, float] | None = None
 
     def start_episode(self, data: mujoco.MjData) -> None:
-        """robosuite's OSC pulls the arm's null space toward the episode's first posture."""
+        """robosuite's OSC pulls the arm's null space toward the episode's first posture; its
+        gripper command starts at 0 after a reset (robosuite rebuilds its gripper models on a
+        hard reset, the default, and robomimic's environments reset hard)."""
         self.initial_joints = data.qpos[self.arm.layout.qpos].copy()
+        self.gripper_command = 0.0
+
+    def finger_command(self, gripper_action: float) -> float:
+        """The finger command after a step with ``gripper_action``: robosuite's ramp."""
+        if self._gripper_speed is None:
+            return float(gripper_action)
+        step = self._gripper_speed * float(np.sign(gripper_action))
+        return float(np.clip(self.gripper_command + step, -1.0, 1.0))
 
     def step(self, data: mujoco.MjData, action: npt.NDArray[np.float64]) -> None:
         # Still asleep: the same positions, velocities and command as the step that slept last
         # decide the same way again, without recomputing anything.
-        key = (data.qpos.tobytes(), data.qvel.tobytes(), action.tobytes())
+        arm_action = action[:-1]
+        gripper = self.finger_command(action[-1])
+        self.gripper_command = gripper
+        key = (data.qpos.tobytes(), data.qvel.tobytes(), action[:-1].tobytes(), gripper)
         if key == self._asleep_at:
             self._sleep(data)
             return
-        arm_action, gripper = action[:-1], action[-1]
         if self.mode == "osc-pose":
             self._osc(data, arm_action)
         else:

@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
-from crowdteleop.errors import UnknownRobotError
+from crowdteleop.errors import InvalidStateError, UnknownRobotError
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, touching
 from crowdteleop.sim.fastrender import FastSceneRenderer
@@ -32,6 +32,7 @@ from crowdteleop.sim.types import (
     StepResult,
     TaskProgress,
     flat_state,
+    low_dim_keys,
     validate_state,
 )
 from crowdteleop.tasks import TaskSpec, get_task
@@ -63,7 +64,7 @@ class RobosuiteSimulation:
             has_renderer=False,
             has_offscreen_renderer=False,
             use_camera_obs=False,
-            use_object_obs=False,
+            use_object_obs=True,  # observables only: computed when `observations` asks
             control_freq=control_freq,
             hard_reset=False,
             ignore_done=True,
@@ -135,6 +136,23 @@ class RobosuiteSimulation:
         state = validate_state(state, 1 + self._model.nq + self._model.nv)
         self._env.sim.set_state_from_flattened(state)
         self._env.sim.forward()
+
+    def controller_state(self) -> npt.NDArray[np.float64]:
+        """robosuite's ramped finger command, kept between steps (shape (1,))."""
+        return np.array([self._stepper.gripper_command])
+
+    def set_controller_state(self, value: npt.NDArray[np.float64]) -> None:
+        value = np.asarray(value, dtype=float).reshape(-1)
+        if value.shape != (1,) or not np.all(np.isfinite(value)) or abs(value[0]) > 1:
+            raise InvalidStateError(
+                f"controller state must be one finite finger command in [-1, 1], got {value}"
+            )
+        self._stepper.gripper_command = float(value[0])
+
+    def observations(self) -> dict[str, npt.NDArray[np.float64]]:
+        """robosuite's own observables (its sensors, on this data), under robomimic's keys."""
+        raw = self._env._get_observations(force_update=True)
+        return low_dim_keys(raw, self._robot.robot_model.naming_prefix)
 
     # --- observation -----------------------------------------------------------------------
     def render(self, camera: str, width: int, height: int) -> npt.NDArray[np.uint8]:
@@ -244,6 +262,7 @@ class RobosuiteSimulation:
             np.array(robot._ref_joint_gripper_actuator_indexes[arm]),
             finger_direction(robot.gripper[arm]),
             self.control_dt,
+            float(robot.gripper[arm].speed) if self.config.gripper_ramp else None,
         )
 
     def _init_gripper_geometry(self) -> None:

@@ -1,0 +1,119 @@
+"""``actions_abs``: each step's end-effector target as an absolute pose, robomimic's layout.
+
+Delta actions compound when replayed open loop: every small difference between two simulators
+moves the next delta's origin. An absolute target does not. Each row is
+``[x, y, z, ax, ay, az, gripper]``: the hand's goal position and orientation (axis-angle) in the
+frame of robosuite's arm base site (``robot0_right_center``), exactly what robosuite's OSC_POSE
+takes with ``input_type="absolute"`` and ``input_ref_frame="base"``
+(`absolute_controller_configs`), and what robosuite's own ``delta_to_abs_action`` computes.
+
+- ``osc``: the goal the delta action set (current hand pose plus the scaled delta, in the base
+  frame): stepping it in robosuite's absolute OSC is the same control law as the delta.
+- ``ik-velocity``: the hand pose at the joint goal the step set (``q + qdot * dt``, forward
+  kinematics on the recorded model).
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import mujoco
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial.transform import Rotation
+
+from crowdteleop.dataset.files import DatasetError
+from crowdteleop.sim.types import KinematicModel
+
+
+def absolute_controller_configs(controller_configs: dict[str, Any]) -> dict[str, Any]:
+    """robosuite's OSC_POSE reading ``actions_abs`` (absolute, base frame), with the gains of
+    the recorded OSC (or robosuite's defaults for a joint controller's demos)."""
+    configs = copy.deepcopy(controller_configs)
+    arm = configs["body_parts"]["right"]
+    if arm.get("type") != "OSC_POSE":
+        arm = {
+            "type": "OSC_POSE",
+            "kp": 150,
+            "damping_ratio": 1,
+            "impedance_mode": "fixed",
+            "kp_limits": [0, 300],
+            "damping_ratio_limits": [0, 10],
+            "position_limits": None,
+            "orientation_limits": None,
+            "uncouple_pos_ori": True,
+            "interpolation": None,
+            "ramp_ratio": 0.2,
+            "gripper": arm.get("gripper", {"type": "GRIP"}),
+        }
+    configs["body_parts"]["right"] = arm | {
+        "input_type": "absolute",
+        "input_ref_frame": "base",
+        "input_max": 1,
+        "input_min": -1,
+        "output_max": [0.05, 0.05, 0.05, 0.5, 0.5, 0.5],
+        "output_min": [-0.05, -0.05, -0.05, -0.5, -0.5, -0.5],
+    }
+    return configs
+
+
+class AbsoluteTargets:
+    """Forward kinematics of one recorded model, for turning actions into absolute targets."""
+
+    def __init__(self, kinematics: KinematicModel, arm_config: dict[str, Any]) -> None:
+        self._model = mujoco.MjModel.from_xml_string(kinematics.mjcf_xml)
+        self._data = mujoco.MjData(self._model)
+        model = self._model
+        joints = [model.joint(name).id for name in kinematics.arm_joints]
+        self._arm_qpos = model.jnt_qposadr[joints]
+        self._eef = model.site(kinematics.end_effector_site).id
+        prefix = kinematics.arm_joints[0].split("_")[0] + "_"
+        centre = [
+            model.site(i).name
+            for i in range(model.nsite)
+            if model.site(i).name.startswith(prefix) and model.site(i).name.endswith("_center")
+        ]
+        if not centre:
+            raise DatasetError("the recorded model has no arm base site (robot0_right_center)")
+        self._centre = model.site(centre[0]).id
+        self._type = arm_config.get("type")
+        if self._type not in ("OSC_POSE", "JOINT_POSITION"):
+            raise DatasetError(f"no absolute targets for a {self._type} controller")
+        self._scale = np.asarray(arm_config["output_max"], dtype=float) / np.asarray(
+            arm_config["input_max"], dtype=float
+        )
+
+    def _frames(self, qpos: npt.NDArray[np.float64]) -> tuple[Any, Any, Any, Any]:
+        data = self._data
+        data.qpos[:] = qpos
+        mujoco.mj_kinematics(self._model, data)
+        return (
+            data.site_xpos[self._eef].copy(),
+            data.site_xmat[self._eef].reshape(3, 3).copy(),
+            data.site_xpos[self._centre].copy(),
+            data.site_xmat[self._centre].reshape(3, 3).copy(),
+        )
+
+    def of(
+        self, states: npt.NDArray[np.float64], actions: npt.NDArray[np.float64]
+    ) -> npt.NDArray[np.float64]:
+        """(N, 7) absolute targets for N (state before, action) pairs."""
+        nq = self._model.nq
+        rows = []
+        for state, action in zip(states, actions, strict=True):
+            qpos = state[1 : 1 + nq]
+            hand, hand_rot, base, base_rot = self._frames(qpos)
+            if self._type == "OSC_POSE":
+                delta = action[:6] * np.broadcast_to(self._scale, (6,))
+                goal = hand + base_rot @ delta[:3]
+                turn = Rotation.from_rotvec(delta[3:]).as_matrix()
+                goal_rot = base_rot @ turn @ base_rot.T @ hand_rot
+            else:
+                moved = qpos.copy()
+                moved[self._arm_qpos] += action[:-1] * self._scale
+                goal, goal_rot, _, _ = self._frames(moved)
+            position = base_rot.T @ (goal - base)
+            rotation = Rotation.from_matrix(base_rot.T @ goal_rot).as_rotvec()
+            rows.append(np.concatenate([position, rotation, action[-1:]]))
+        return np.array(rows, dtype=np.float64)
