@@ -58,6 +58,10 @@ DEFAULT_DRIFT_TOLERANCE = 1e-6  # max |state error| of action replay in the reco
 
 
 DEFAULT_OBS = parse_obs([LOW_DIM])
+# The paper's conditions (Sec. 4.3): 2.4 Mbps vs 500 kbps, 20 ms vs 120 ms one way.
+LOW_CAPACITY_KBPS = 1000.0
+HIGH_DELAY_RTT_MS = 150.0
+LOSSY_FRACTION = 0.02
 
 
 @dataclass
@@ -93,23 +97,29 @@ def interface_of(episode: Episode) -> str:
 
 
 def network_of(metadata: dict[str, Any]) -> str:
-    """The network condition: a label the campaign set, else one read off the telemetry
-    (the paper's four: baseline, low-capacity, high-delay, both), else "unknown"."""
+    """The network condition: a label the campaign set, else one read off what was measured on
+    the link (the paper's four: baseline, low-capacity, high-delay, both; "+lossy" past 2 %
+    loss), else "unknown". Delay is the data channel's round trip (or RTCP's); capacity counts
+    as low only from a receiver's bandwidth estimate (``receiver_kbps``), never from the rate
+    the encoder chose (aiortc starts every stream at 500 kbps, on loopback too)."""
     named = metadata.get("network_condition")
     if isinstance(named, str) and named:
         return named
     telemetry = metadata.get("telemetry") or {}
-    rtt, kbps = telemetry.get("rtt_ms"), telemetry.get("bitrate_kbps")
-    if not rtt and not kbps:
+    rtt = telemetry.get("rtt_ms") or telemetry.get("rtcp_rtt_ms")
+    estimate = telemetry.get("receiver_kbps")
+    if not rtt and not estimate:
         return "unknown"
-    slow = bool(kbps and kbps < 1000)
-    late = bool(rtt and rtt >= 150)
-    return {
+    slow = bool(estimate and estimate < LOW_CAPACITY_KBPS)
+    late = bool(rtt and rtt >= HIGH_DELAY_RTT_MS)
+    label = {
         (False, False): "baseline",
         (True, False): "low-capacity",
         (False, True): "high-delay",
         (True, True): "both",
     }[(slow, late)]
+    lossy = (telemetry.get("loss_fraction") or 0.0) >= LOSSY_FRACTION
+    return f"{label}+lossy" if lossy else label
 
 
 def summarize(name: str, episode: Episode, drift: float | None = None) -> DemoSummary:

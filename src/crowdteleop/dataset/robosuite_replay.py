@@ -175,10 +175,14 @@ class RobosuiteReplayer:
         self,
         first_state: npt.NDArray[np.float64],
         actions: npt.NDArray[np.float64],
-        initial_joints: npt.NDArray[np.float64],
+        initial_joints: npt.NDArray[np.float64] | None,
         first_finger_command: float = 0.0,
     ) -> Trajectory:
-        """All actions stepped from the first state: robosuite's ``--use-actions`` playback."""
+        """All actions stepped from the first state: robosuite's ``--use-actions`` playback
+        (``initial_joints`` None: the OSC's null space pulls toward the first state's arm)."""
+        self._load(first_state, first_finger_command)
+        if initial_joints is None:
+            initial_joints = np.array(self._env.robots[0]._joint_positions)
         self._arm.update_initial_joints(initial_joints)
         self._load(first_state, first_finger_command)
         return self._trajectory([self._step(action) for action in actions])

@@ -101,7 +101,7 @@ class TickBroadcaster:
             return
         self._last_telemetry_s = now
         self._telemetry.update_fps()
-        self._telemetry.update_bitrate(await self._peers.video_bytes_sent())
+        self._telemetry.update_link(await self._peers.video_link())
         snapshot = self._snapshot()
         message = Telemetry(
             loop_hz=snapshot["loop_hz"],

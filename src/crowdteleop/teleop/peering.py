@@ -7,6 +7,7 @@ import asyncio
 import secrets
 from collections import Counter
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
 from aiortc import (
     RTCConfiguration,
@@ -29,6 +30,14 @@ CLIENT_CHANNELS = frozenset({"control", "events", "admin"})
 
 MessageHandler = Callable[[Peer, str, str | bytes], None]
 PeerCallback = Callable[[Peer], None]
+
+
+@dataclass
+class LinkStats:
+    bytes_sent: int = 0
+    packets_sent: int = 0
+    packets_lost: int = 0  # as the receivers' RTCP reports counted them
+    rtcp_rtt_s: float = 0.0
 
 
 class PeerSet:
@@ -131,20 +140,25 @@ class PeerSet:
         peers, self._peers = list(self._peers.values()), {}
         await asyncio.gather(*(peer.pc.close() for peer in peers))
 
-    async def video_bytes_sent(self) -> int:
-        """Bytes every video sender has put on the wire so far (for the bitrate telemetry)."""
-        total = 0
+    async def video_link(self) -> LinkStats:
+        """What the video senders put on the wire so far and what the receivers' RTCP reports
+        said of it (packets lost, round trip): the link as measured, for telemetry."""
+        link = LinkStats()
         for peer in list(self._peers.values()):
             if not peer.wants_video:
                 continue
             for sender in peer.pc.getSenders():
                 if sender.track is None:
                     continue
-                stats = await sender.getStats()
-                total += sum(
-                    getattr(s, "bytesSent", 0) for s in stats.values() if s.type == "outbound-rtp"
-                )
-        return total
+                for s in (await sender.getStats()).values():
+                    if s.type == "outbound-rtp":
+                        link.bytes_sent += getattr(s, "bytesSent", 0)
+                        link.packets_sent += getattr(s, "packetsSent", 0)
+                    elif s.type == "remote-inbound-rtp":
+                        link.packets_lost += max(0, getattr(s, "packetsLost", 0))
+                        if getattr(s, "roundTripTime", None):
+                            link.rtcp_rtt_s = max(link.rtcp_rtt_s, float(s.roundTripTime))
+        return link
 
     def _prefer_codec(self, transceiver: RTCRtpTransceiver) -> None:
         codecs = RTCRtpSender.getCapabilities("video").codecs

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from crowdteleop.teleop.clock import LoopStats
+from crowdteleop.teleop.peering import LinkStats
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -32,6 +33,8 @@ class SessionTelemetry:
     _fps_mark: tuple[float, int] = field(default_factory=lambda: (time.monotonic(), 0))
     _bytes_mark: tuple[int, float] = field(default_factory=lambda: (0, time.monotonic()))
     fps: float = 0.0
+    loss_fraction: float = 0.0
+    rtcp_rtt_ms: float = 0.0
 
     def frame_published(self) -> None:
         self.frames_published += 1
@@ -42,6 +45,14 @@ class SessionTelemetry:
         if now - then >= 0.5:
             self.fps = (self.frames_published - count) / (now - then)
             self._fps_mark = (now, self.frames_published)
+
+    def update_link(self, link: LinkStats) -> None:
+        """The video's rate since the last call, and the loss and round trip the receivers'
+        RTCP reports measured (what labels an episode's network condition)."""
+        self.update_bitrate(link.bytes_sent)
+        if link.packets_sent > 0:
+            self.loss_fraction = min(1.0, link.packets_lost / link.packets_sent)
+        self.rtcp_rtt_ms = link.rtcp_rtt_s * 1e3
 
     def update_bitrate(self, total_bytes_sent: int) -> None:
         """The video senders' rate since the last call, from their running byte count."""
@@ -66,6 +77,8 @@ class SessionTelemetry:
             "fps": round(self.fps, 2),
             "bitrate_kbps": round(self.bitrate_kbps, 1),
             "rtt_ms": round(statistics.median(rtt), 2) if rtt else 0.0,
+            "rtcp_rtt_ms": round(self.rtcp_rtt_ms, 2),
+            "loss_fraction": round(self.loss_fraction, 4),
             "latency_p50_ms": round(percentile(latency, 50), 1),
             "latency_p95_ms": round(percentile(latency, 95), 1),
             "client_fps": round(statistics.median(self.client_fps), 1) if self.client_fps else 0,

@@ -1,0 +1,203 @@
+"""``crowdteleop dataset check FILE``: will the field's own tools accept this dataset as it is?
+
+Each check does what a robosuite, robomimic or LeRobot user's code does with the file and says
+pass, fail or skip, with the figure behind the verdict:
+
+- ``env_info``: robosuite's playback script rebuilds each demo (``robosuite.make(**env_info)``,
+  ``reset_from_xml_string(edit_model_xml(model_file))``);
+- ``states``: those states set one by one read back exactly;
+- ``actions``: the recorded actions stepped in plain robosuite built from ``env_args`` (the
+  controller it names) move the hand where it went, step by step (bounded) and open loop
+  (reported after 20 and 40 steps: delta actions compound);
+- ``actions_abs``: the absolute targets stepped open loop in robosuite's absolute OSC;
+- ``obs``: the low-dim keys robomimic's stock configs ask for, with robosuite's shapes, in
+  ``obs/`` and ``next_obs/``, and robomimic's ``SequenceDataset`` loading them.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import h5py
+import numpy as np
+
+from crowdteleop.dataset.files import open_dataset
+
+Verdict = Literal["pass", "fail", "skip"]
+STOCK_LOW_DIM = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos", "object")
+STOCK_SHAPES = {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_qpos": 2}
+# Per-step bounds (tests/dataset/test_robosuite_equivalence.py): our controllers are
+# robosuite's, linearized once per 50 ms step.
+PER_STEP_MEDIAN_M = 0.001
+PER_STEP_MAX_M = 0.003
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    name: str
+    verdict: Verdict
+    detail: str
+
+
+def check_dataset(
+    path: Path, demos: int = 3, progress: Callable[[int, int], None] | None = None
+) -> list[CheckResult]:
+    """Run every check on the first ``demos`` demos (the obs check reads all)."""
+    with open_dataset(path) as file:
+        names = sorted(file["data"], key=lambda n: int(n.split("_")[-1]))[: max(1, demos)]
+    checks: list[Callable[[Path, list[str]], CheckResult]] = [
+        _env_info_and_states,
+        _actions,
+        _absolute_actions,
+        _observations,
+    ]
+    results = []
+    for i, check in enumerate(checks):
+        try:
+            results.append(check(path, names))
+        except Exception as error:  # a check that cannot run is a failed check, said why
+            results.append(CheckResult(check.__name__.strip("_"), "fail", f"{error}"))
+        if progress is not None:
+            progress(i + 1, len(checks))
+    return results
+
+
+def _env_info_and_states(path: Path, names: list[str]) -> CheckResult:
+    from crowdteleop.dataset.robosuite_replay import play_states_in_robosuite
+
+    worst = 0.0
+    for name in names:
+        playback = play_states_in_robosuite(str(path), name)
+        worst = max(worst, playback.max_state_error)
+    verdict: Verdict = "pass" if worst == 0.0 else "fail"
+    return CheckResult(
+        "env_info + states",
+        verdict,
+        f"robosuite.make(**env_info) rebuilt {len(names)} demos; states read back with max "
+        f"error {worst:.3g}",
+    )
+
+
+def _env_args(path: Path) -> dict[str, Any]:
+    with open_dataset(path) as file:
+        env_args: dict[str, Any] = json.loads(file["data"].attrs["env_args"])
+    if "controller_configs" not in env_args.get("env_kwargs", {}):
+        raise ValueError("env_args names no controller_configs: robosuite would use its default")
+    return env_args
+
+
+def _actions(path: Path, names: list[str]) -> CheckResult:
+    from crowdteleop.dataset.replay import ReplayChecker, load_demo
+
+    env_args = _env_args(path)
+    medians, maxima, after20, after40 = [], [], [], []
+    with ReplayChecker() as checker:
+        for name in names:
+            drift = checker.robosuite_drift(load_demo(path, name), env_args)
+            medians.append(drift.per_step_median_m)
+            maxima.append(drift.per_step_max_m)
+            after20.append(drift.open_loop_at_m.get(20, np.nan))
+            after40.append(drift.open_loop_at_m.get(40, np.nan))
+    ok = max(medians) < PER_STEP_MEDIAN_M and max(maxima) < PER_STEP_MAX_M
+    arm = env_args["env_kwargs"]["controller_configs"]["body_parts"]["right"]["type"]
+    return CheckResult(
+        "actions (plain robosuite)",
+        "pass" if ok else "fail",
+        f"{arm}: per step median {max(medians) * 1e3:.2f} mm, max {max(maxima) * 1e3:.2f} mm "
+        f"(bounds {PER_STEP_MEDIAN_M * 1e3:.0f} / {PER_STEP_MAX_M * 1e3:.0f} mm); open loop "
+        f"after 20 steps {np.nanmedian(after20) * 1e3:.1f} mm, after 40 "
+        f"{np.nanmedian(after40) * 1e3:.1f} mm (median)",
+    )
+
+
+def _absolute_actions(path: Path, names: list[str]) -> CheckResult:
+    from crowdteleop.dataset.robosuite_replay import RobosuiteReplayer
+
+    env_args = _env_args(path)
+    with open_dataset(path) as file:
+        configs = file["data"].attrs.get("actions_abs_controller_configs")
+        if configs is None or "actions_abs" not in file["data"][names[0]]:
+            return CheckResult("actions_abs", "skip", "no actions_abs in this dataset")
+        kwargs = env_args["env_kwargs"] | {"controller_configs": json.loads(configs)}
+        errors20, errors40 = [], []
+        for name in names:
+            group = file["data"][name]
+            states, absolute = group["states"][()], group["actions_abs"][()]
+            start = float(group["controller_states"][0][0]) if "controller_states" in group else 0
+            model_file = str(group.attrs["model_file"])
+            replayer = RobosuiteReplayer(env_args["env_name"], kwargs, model_file)
+            try:
+                hands = replayer.open_loop(states[0], absolute, None, start).hands
+            finally:
+                replayer.close()
+            recorded = group["obs/robot0_eef_pos"][()] if "obs" in group else None
+            if recorded is None:
+                return CheckResult("actions_abs", "skip", "no obs/robot0_eef_pos to compare with")
+            error = np.linalg.norm(hands[:-1] - recorded[1:], axis=1)
+            errors20.append(error[min(19, len(error) - 1)])
+            errors40.append(error[min(39, len(error) - 1)])
+    return CheckResult(
+        "actions_abs (robosuite absolute OSC)",
+        "pass",
+        f"open loop after 20 steps {np.median(errors20) * 1e3:.1f} mm, after 40 "
+        f"{np.median(errors40) * 1e3:.1f} mm (median): absolute targets do not compound",
+    )
+
+
+def _observations(path: Path, names: list[str]) -> CheckResult:
+    with h5py.File(path, "r") as file:
+        for name in file["data"]:
+            group = file["data"][name]
+            for folder in ("obs", "next_obs"):
+                missing = [k for k in STOCK_LOW_DIM if f"{folder}/{k}" not in group]
+                if missing:
+                    return CheckResult(
+                        "obs (robomimic stock keys)",
+                        "fail",
+                        f"{name}/{folder} lacks {', '.join(missing)}: rebuild with --obs low-dim",
+                    )
+                for key, width in STOCK_SHAPES.items():
+                    shape = group[f"{folder}/{key}"].shape
+                    if shape != (group.attrs["num_samples"], width):
+                        return CheckResult(
+                            "obs (robomimic stock keys)", "fail", f"{name}/{folder}/{key}: {shape}"
+                        )
+    loaded = _sequence_dataset_length(path)
+    return CheckResult(
+        "obs (robomimic stock keys)",
+        "pass",
+        f"{', '.join(STOCK_LOW_DIM)} in obs/ and next_obs/ of every demo; "
+        + (f"robomimic's SequenceDataset loads {loaded} samples" if loaded else "robomimic absent"),
+    )
+
+
+def _sequence_dataset_length(path: Path) -> int | None:
+    try:
+        import robomimic.utils.obs_utils as obs_utils
+        from robomimic.utils.dataset import SequenceDataset
+    except ImportError:
+        return None
+    obs_utils.initialize_obs_utils_with_obs_specs(
+        {"obs": {"low_dim": list(STOCK_LOW_DIM), "rgb": []}}
+    )
+    dataset = SequenceDataset(
+        hdf5_path=str(path),
+        obs_keys=STOCK_LOW_DIM,
+        dataset_keys=("actions", "rewards", "dones"),
+        load_next_obs=True,
+        frame_stack=1,
+        seq_length=10,
+        pad_frame_stack=True,
+        pad_seq_length=True,
+        get_pad_mask=False,
+        goal_mode=None,
+        hdf5_cache_mode=None,
+        hdf5_use_swmr=True,
+        hdf5_normalize_obs=False,
+        filter_by_attribute=None,
+    )
+    return len(dataset)
