@@ -310,9 +310,18 @@ def test_export_rerenders_images_for_robomimic_and_lerobot(dataset, tmp_path):
         ],
     )
     assert result.exit_code == 0, result.output
+    # the layout lerobot 0.4.4 reads (its own loader: tests/dataset/test_lerobot_export.py)
     info = json.loads((lerobot / "meta/info.json").read_text())
     assert info["codebase_version"] == "v3.0" and info["total_episodes"] == N_SUCCESS
-    assert info["features"]["observation.images.agentview"]["dtype"] == "video"
+    assert info["fps"] == 20 and isinstance(info["fps"], int)
+    assert (info["data_files_size_in_mb"], info["video_files_size_in_mb"]) == (100, 200)
+    video_feature = info["features"]["observation.images.agentview"]
+    assert video_feature["dtype"] == "video" and video_feature["shape"] == [48, 64, 3]
+    assert video_feature["info"]["video.fps"] == 20
+    assert isinstance(video_feature["info"]["video.fps"], int)
+    assert len(info["features"]["action"]["names"]) == 8
+    state = info["features"]["observation.state"]
+    assert len(state["names"]) == state["shape"][0] and "robot0_eef_pos.x" in state["names"]
     frames = pq.read_table(lerobot / "data/chunk-000/file-000.parquet")
     assert frames.num_rows == info["total_frames"]
     assert {
@@ -327,14 +336,22 @@ def test_export_rerenders_images_for_robomimic_and_lerobot(dataset, tmp_path):
     episodes = pq.read_table(lerobot / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
     assert [e["episode_index"] for e in episodes] == list(range(N_SUCCESS))
     assert episodes[-1]["dataset_to_index"] == frames.num_rows
-    tasks = pq.read_table(lerobot / "meta/tasks.parquet").to_pylist()
-    assert tasks == [{"task_index": 0, "task": "Pick up the red cube and lift it above the table."}]
+    assert len(episodes[0]["stats/action/q01"]) == 8  # per-episode stats, as LeRobot writes them
+    # the task string is the (pandas) index LeRobot names each frame's task by
+    tasks = pq.read_table(lerobot / "meta/tasks.parquet")
+    assert json.loads(tasks.schema.metadata[b"pandas"])["index_columns"] == ["task"]
+    instruction = "Pick up the red cube and lift it above the table."
+    assert tasks.to_pylist() == [{"task_index": 0, "task": instruction}]
     stats = json.loads((lerobot / "meta/stats.json").read_text())
     assert len(stats["action"]["mean"]) == 8
+    for feature in ("observation.state", "action", "observation.images.agentview"):
+        assert {"q01", "q10", "q50", "q90", "q99"} <= set(stats[feature])
+    assert np.array(stats["observation.images.agentview"]["q99"]).shape == (3, 1, 1)
     video = lerobot / "videos/observation.images.agentview/chunk-000/file-000.mp4"
     with av.open(str(video)) as container:
-        decoded = sum(1 for _ in container.decode(video=0))
-    assert decoded == frames.num_rows
+        keyframes = [f.key_frame for f in container.decode(video=0)]
+    assert len(keyframes) == frames.num_rows
+    assert np.diff(np.flatnonzero(keyframes)).max() <= 2  # random access decodes <= 2 frames
     assert episodes[1]["videos/observation.images.agentview/from_timestamp"] == pytest.approx(
         episodes[0]["length"] / info["fps"]
     )

@@ -12,6 +12,7 @@ from typing import Annotated, Literal
 
 import typer
 from rich.console import Console
+from rich.table import Table
 
 from crowdteleop.errors import CrowdteleopError
 
@@ -94,11 +95,21 @@ def build(
     skip_bad: Annotated[bool, typer.Option(help="leave unreadable episodes out")] = False,
     overwrite: Annotated[bool, typer.Option(help="replace an existing output")] = False,
     s3_endpoint: Annotated[str | None, typer.Option(help="endpoint of s3:// sources")] = None,
+    obs: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="observations to compute from the states: low-dim (robosuite's keys, the "
+            "default), rgb:CAMERA:WxH (e.g. rgb:agentview:84x84), or none; repeat or "
+            "comma-separate"
+        ),
+    ] = None,
 ) -> None:
     """Assemble episode files into a robomimic-compatible demo.hdf5."""
     from crowdteleop.dataset.build import build_dataset
+    from crowdteleop.dataset.observations import LOW_DIM, parse_obs
 
     with _clear_errors(), tempfile.TemporaryDirectory() as work:
+        wanted = parse_obs(obs or [LOW_DIM])
         paths = _local_sources(sources, s3_endpoint, Path(work))
         with _progress("checking and assembling") as progress:
             report = build_dataset(
@@ -113,6 +124,7 @@ def build(
                 overwrite=overwrite,
                 drift_tolerance=None if drift_tolerance < 0 else drift_tolerance,
                 progress=progress,
+                obs=wanted,
             )
     for path, why in report.skipped:
         errors.print(f"[yellow]skipped[/yellow] {path}: {why}")
@@ -122,6 +134,26 @@ def build(
         f"{output}: {len(report.demos)} demos, {sum(d.steps for d in report.demos)} steps, "
         f"{len(report.flagged)} flagged, built in {report.seconds:.1f} s"
     )
+
+
+@app.command()
+def check(
+    path: Annotated[Path, typer.Argument(help="dataset built by `dataset build`")],
+    demos: Annotated[int, typer.Option(help="demos to replay in plain robosuite")] = 3,
+) -> None:
+    """Will robosuite, robomimic and LeRobot users' code accept this dataset? One verdict per
+    check: rebuild from env_info, state replay, action replay, absolute actions, obs keys."""
+    from crowdteleop.dataset.check import check_dataset
+
+    with _clear_errors(), _progress("checking") as progress:
+        results = check_dataset(path, demos, progress)
+    table = Table("check", "verdict", "detail", title=str(path))
+    colour = {"pass": "green", "fail": "red", "skip": "yellow"}
+    for result in results:
+        table.add_row(result.name, f"[{colour[result.verdict]}]{result.verdict}[/]", result.detail)
+    console.print(table)
+    if any(r.verdict == "fail" for r in results):
+        raise typer.Exit(1)
 
 
 @app.command()
@@ -135,7 +167,7 @@ def replay(
     height: Annotated[int, typer.Option(help="video height (even)")] = 240,
     output: Annotated[Path, typer.Option(help="MP4 to write")] = Path("out/replay.mp4"),
     robosuite: Annotated[
-        bool, typer.Option(help="also step the actions in plain robosuite (osc-pose demos)")
+        bool, typer.Option(help="also step the actions in plain robosuite (from env_args)")
     ] = False,
 ) -> None:
     """Re-simulate a demo from its states into an MP4; check state replay, measure drift."""
@@ -154,9 +186,7 @@ def replay(
         f"action replay drift: max {result.drift.max_state_error:.3g}, "
         f"final {result.drift.final_state_error:.3g}"
     )
-    if robosuite and plain is None:
-        console.print("plain robosuite: only osc-pose demos replay there (this one is not)")
-    elif plain is not None:
+    if plain is not None:
         console.print(
             f"plain robosuite: hand drift per step median {plain.per_step_median_m * 1e3:.2f} mm, "
             f"max {plain.per_step_max_m * 1e3:.2f} mm; open loop max "
@@ -218,7 +248,8 @@ def export(
     height: Annotated[int, typer.Option(help="image height")] = 84,
 ) -> None:
     """Re-render image observations from the states into robomimic or LeRobot v3 layout."""
-    from crowdteleop.dataset.export import export_lerobot, export_robomimic
+    from crowdteleop.dataset.export import export_robomimic
+    from crowdteleop.dataset.lerobot import export_lerobot
 
     cameras = camera or ["agentview"]
     with _clear_errors(), _progress(f"rendering {', '.join(cameras)}") as progress:
