@@ -78,6 +78,8 @@ def test_a_bot_completes_lift_and_the_episode_replays_exactly(tmp_path):
     assert any(h.object == "cube" for h in haptics), "the phone buzzes when the gripper touches"
     assert phone_frames == 0, "the phone gets no video"
     assert telemetry["loop_hz"] > 15, "the loop runs at its rate (benchmarks/teleop.py measures)"
+    # the receiver's own bandwidth estimate (its REMB), which labels the network condition
+    assert telemetry.get("receiver_kbps", 0) > 0, telemetry
 
     episode = read_episode(stored[0])
     assert episode.outcome == "success"

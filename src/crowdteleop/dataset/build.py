@@ -62,6 +62,8 @@ DEFAULT_OBS = parse_obs([LOW_DIM])
 LOW_CAPACITY_KBPS = 1000.0
 HIGH_DELAY_RTT_MS = 150.0
 LOSSY_FRACTION = 0.02
+QUEUE_MS = 50.0  # median minus minimum round trip: a bottleneck's queue
+CONGESTED_LOSS = 0.005
 
 
 @dataclass
@@ -99,27 +101,34 @@ def interface_of(episode: Episode) -> str:
 def network_of(metadata: dict[str, Any]) -> str:
     """The network condition: a label the campaign set, else one read off what was measured on
     the link (the paper's four: baseline, low-capacity, high-delay, both; "+lossy" past 2 %
-    loss), else "unknown". Delay is the data channel's round trip (or RTCP's); capacity counts
-    as low only from a receiver's bandwidth estimate (``receiver_kbps``), never from the rate
-    the encoder chose (aiortc starts every stream at 500 kbps, on loopback too)."""
+    loss), else "unknown".
+
+    Delay is the link's own: the smallest data-channel round trip of the episode (a queue adds
+    to the median, not to the minimum). Capacity is low when the receiver's bandwidth estimate
+    (its REMB, ``receiver_kbps``) is under 1 Mbps *and* the link shows it is the bottleneck: a
+    queue (median round trip 50 ms above the minimum) or loss. An estimate alone says little:
+    receivers ramp it up from what arrives, and aiortc starts every stream at 500 kbps, on
+    loopback too; the encoder's own rate is never used."""
     named = metadata.get("network_condition")
     if isinstance(named, str) and named:
         return named
     telemetry = metadata.get("telemetry") or {}
     rtt = telemetry.get("rtt_ms") or telemetry.get("rtcp_rtt_ms")
+    base_rtt = telemetry.get("rtt_min_ms") or rtt
     estimate = telemetry.get("receiver_kbps")
     if not rtt and not estimate:
         return "unknown"
-    slow = bool(estimate and estimate < LOW_CAPACITY_KBPS)
-    late = bool(rtt and rtt >= HIGH_DELAY_RTT_MS)
+    loss = telemetry.get("loss_fraction") or 0.0
+    queued = bool(rtt and base_rtt and rtt - base_rtt >= QUEUE_MS)
+    slow = bool(estimate and estimate < LOW_CAPACITY_KBPS and (queued or loss >= CONGESTED_LOSS))
+    late = bool(base_rtt and base_rtt >= HIGH_DELAY_RTT_MS)
     label = {
         (False, False): "baseline",
         (True, False): "low-capacity",
         (False, True): "high-delay",
         (True, True): "both",
     }[(slow, late)]
-    lossy = (telemetry.get("loss_fraction") or 0.0) >= LOSSY_FRACTION
-    return f"{label}+lossy" if lossy else label
+    return f"{label}+lossy" if loss >= LOSSY_FRACTION else label
 
 
 def summarize(name: str, episode: Episode, drift: float | None = None) -> DemoSummary:

@@ -202,9 +202,7 @@ class ReplayChecker:
             max_qpos_error=max(qpos_errors, default=0.0),
         )
 
-    def robosuite_drift(
-        self, demo: Demo, env_args: dict[str, Any] | None = None
-    ) -> RobosuiteDrift:
+    def robosuite_drift(self, demo: Demo, env_args: dict[str, Any] | None = None) -> RobosuiteDrift:
         """Action replay in plain robosuite rebuilt from ``env_args`` (default: the demo's
         file's), per step from each recorded state and open loop from the first, against our
         hand. Files recorded before ``env_args`` named the controller get it from their

@@ -24,6 +24,7 @@ from crowdteleop.teleop.config import LimitsConfig, VideoConfig
 from crowdteleop.teleop.guard import InboundGuard
 from crowdteleop.teleop.messages import OfferRequest
 from crowdteleop.teleop.peers import Peer
+from crowdteleop.teleop.remb import RembTap
 from crowdteleop.teleop.video import FrameSource, SimVideoTrack
 
 CLIENT_CHANNELS = frozenset({"control", "events", "admin"})
@@ -38,6 +39,7 @@ class LinkStats:
     packets_sent: int = 0
     packets_lost: int = 0  # as the receivers' RTCP reports counted them
     rtcp_rtt_s: float = 0.0
+    receiver_estimate_kbps: float | None = None  # the lowest REMB a video receiver sent
 
 
 class PeerSet:
@@ -63,6 +65,7 @@ class PeerSet:
         self._video = video
         self._frames = frames
         self._on_message = on_message
+        self._remb: dict[str, RembTap] = {}  # peer id -> its video sender's REMB tap
         self._on_events_open = on_events_open
         self._on_left = on_left
         self._peers: dict[str, Peer] = {}
@@ -119,7 +122,9 @@ class PeerSet:
                 # Made before the offer is applied, so the codec preference shapes the answer
                 # (aiortc negotiates codecs in setRemoteDescription).
                 peer.track = SimVideoTrack(self._frames)
-                self._prefer_codec(pc.addTransceiver(peer.track, direction="sendonly"))
+                transceiver = pc.addTransceiver(peer.track, direction="sendonly")
+                self._prefer_codec(transceiver)
+                self._remb[peer.peer_id] = RembTap(transceiver.sender)
             sdp = without_mdns_candidates(offer.sdp)
             await pc.setRemoteDescription(RTCSessionDescription(sdp, offer.type))
             await pc.setLocalDescription(await pc.createAnswer())
@@ -130,6 +135,7 @@ class PeerSet:
 
     async def drop(self, peer: Peer) -> None:
         """Close a peer that left (idempotent)."""
+        self._remb.pop(peer.peer_id, None)
         if self._peers.pop(peer.peer_id, None) is None:
             return
         self._departed_errors += peer.errors
@@ -147,6 +153,11 @@ class PeerSet:
         for peer in list(self._peers.values()):
             if not peer.wants_video:
                 continue
+            tap = self._remb.get(peer.peer_id)
+            if tap is not None and tap.estimate_bps is not None:
+                kbps = tap.estimate_bps / 1000
+                known = link.receiver_estimate_kbps
+                link.receiver_estimate_kbps = kbps if known is None else min(known, kbps)
             for sender in peer.pc.getSenders():
                 if sender.track is None:
                     continue

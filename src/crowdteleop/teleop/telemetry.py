@@ -27,6 +27,7 @@ class SessionTelemetry:
     rtt_ms: deque[float] = field(default_factory=lambda: deque(maxlen=200))
     latency_ms: deque[float] = field(default_factory=lambda: deque(maxlen=2000))
     client_fps: deque[float] = field(default_factory=lambda: deque(maxlen=50))
+    receiver_kbps: deque[float] = field(default_factory=lambda: deque(maxlen=50))
     errors: Counter[str] = field(default_factory=Counter)
     frames_published: int = 0
     bitrate_kbps: float = 0.0
@@ -53,6 +54,8 @@ class SessionTelemetry:
         if link.packets_sent > 0:
             self.loss_fraction = min(1.0, link.packets_lost / link.packets_sent)
         self.rtcp_rtt_ms = link.rtcp_rtt_s * 1e3
+        if link.receiver_estimate_kbps is not None:
+            self.receiver_kbps.append(link.receiver_estimate_kbps)
 
     def update_bitrate(self, total_bytes_sent: int) -> None:
         """The video senders' rate since the last call, from their running byte count."""
@@ -77,10 +80,17 @@ class SessionTelemetry:
             "fps": round(self.fps, 2),
             "bitrate_kbps": round(self.bitrate_kbps, 1),
             "rtt_ms": round(statistics.median(rtt), 2) if rtt else 0.0,
+            "rtt_min_ms": round(min(rtt), 2) if rtt else 0.0,  # the link's own delay
             "rtcp_rtt_ms": round(self.rtcp_rtt_ms, 2),
             "loss_fraction": round(self.loss_fraction, 4),
             "latency_p50_ms": round(percentile(latency, 50), 1),
             "latency_p95_ms": round(percentile(latency, 95), 1),
             "client_fps": round(statistics.median(self.client_fps), 1) if self.client_fps else 0,
+            # omitted when no receiver reported one: capacity is then not judged from the link
+            **(
+                {"receiver_kbps": round(statistics.median(self.receiver_kbps), 1)}
+                if self.receiver_kbps
+                else {}
+            ),
             "errors": dict(errors),
         }
