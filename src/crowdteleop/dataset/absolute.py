@@ -117,3 +117,20 @@ class AbsoluteTargets:
             rotation = Rotation.from_matrix(base_rot.T @ goal_rot).as_rotvec()
             rows.append(np.concatenate([position, rotation, action[-1:]]))
         return np.array(rows, dtype=np.float64)
+
+    def to_delta(
+        self, state: npt.NDArray[np.float64], target: npt.NDArray[np.float64]
+    ) -> npt.NDArray[np.float64]:
+        """The OSC_POSE delta action that sets the same goal as absolute ``target`` from
+        ``state``: how a policy trained on ``actions_abs`` drives an ``osc`` simulation (the
+        same law as robosuite's absolute OSC while the goal is within one step's reach, 5 cm
+        and 0.5 rad; clipped beyond)."""
+        if self._type != "OSC_POSE":
+            raise DatasetError("absolute targets turn into OSC_POSE deltas only")
+        hand, hand_rot, base, base_rot = self._frames(state[1 : 1 + self._model.nq])
+        goal = base + base_rot @ target[:3]
+        goal_rot = base_rot @ Rotation.from_rotvec(target[3:6]).as_matrix()
+        move = base_rot.T @ (goal - hand)
+        turn = Rotation.from_matrix(base_rot.T @ goal_rot @ hand_rot.T @ base_rot).as_rotvec()
+        delta = np.concatenate([move, turn]) / np.broadcast_to(self._scale, (6,))
+        return np.concatenate([np.clip(delta, -1.0, 1.0), target[6:7]])
