@@ -27,9 +27,11 @@ MAY_IMPORT: dict[str, set[str]] = {
     "teleop": BASE | {"tasks", "sim", "control", "recording"},
     "client": BASE | {"tasks", "sim", "control", "teleop"},
     "dataset": BASE | {"tasks", "sim", "control", "recording", "teleop"},
+    "learn": BASE | {"tasks", "sim", "control", "recording", "dataset"},
     "web": set(),
     "coord": BASE | {"tasks", "teleop", "web"},
-    "cli": BASE | {"tasks", "sim", "control", "recording", "teleop", "client", "dataset", "coord"},
+    "cli": BASE
+    | {"tasks", "sim", "control", "recording", "teleop", "client", "dataset", "learn", "coord"},
     "__main__": {"cli"},
     "__init__": {"gl"},
 }

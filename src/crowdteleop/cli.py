@@ -207,3 +207,7 @@ app.command("serve")(_serve)
 from crowdteleop.dataset.cli import app as dataset_app  # noqa: E402  (registered last)
 
 app.add_typer(dataset_app, name="dataset")
+
+from crowdteleop.learn.cli import app as learn_app  # noqa: E402  (registered last)
+
+app.add_typer(learn_app, name="learn")

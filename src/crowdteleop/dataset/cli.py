@@ -24,8 +24,9 @@ errors = Console(stderr=True, soft_wrap=True)
 
 
 @contextmanager
-def _clear_errors() -> Iterator[None]:
-    """Our errors (and pydantic's) as one red line and exit code 2, not a traceback."""
+def clear_errors() -> Iterator[None]:
+    """Our errors (and pydantic's) as one red line and exit code 2, not a traceback (the
+    offline commands share it: `dataset`, `learn`)."""
     from pydantic import ValidationError
 
     try:
@@ -108,7 +109,7 @@ def build(
     from crowdteleop.dataset.build import build_dataset
     from crowdteleop.dataset.observations import LOW_DIM, parse_obs
 
-    with _clear_errors(), tempfile.TemporaryDirectory() as work:
+    with clear_errors(), tempfile.TemporaryDirectory() as work:
         wanted = parse_obs(obs or [LOW_DIM])
         paths = _local_sources(sources, s3_endpoint, Path(work))
         with _progress("checking and assembling") as progress:
@@ -145,7 +146,7 @@ def check(
     check: rebuild from env_info, state replay, action replay, absolute actions, obs keys."""
     from crowdteleop.dataset.check import check_dataset
 
-    with _clear_errors(), _progress("checking") as progress:
+    with clear_errors(), _progress("checking") as progress:
         results = check_dataset(path, demos, progress)
     table = Table("check", "verdict", "detail", title=str(path))
     colour = {"pass": "green", "fail": "red", "skip": "yellow"}
@@ -173,7 +174,7 @@ def replay(
     """Re-simulate a demo from its states into an MP4; check state replay, measure drift."""
     from crowdteleop.dataset.replay import ReplayChecker, load_demo
 
-    with _clear_errors(), ReplayChecker() as checker:
+    with clear_errors(), ReplayChecker() as checker:
         loaded = load_demo(path, demo)
         with _progress(f"replaying {loaded.name}") as progress:
             result = checker.replay(loaded, camera, width, height, output, progress)
@@ -209,7 +210,7 @@ def stats(
     from crowdteleop.dataset.files import dataset_demos
     from crowdteleop.dataset.stats import markdown, write_report
 
-    with _clear_errors():
+    with clear_errors():
         demos = []
         for source in sources:
             if source.is_file() and _is_dataset(source):
@@ -252,7 +253,7 @@ def export(
     from crowdteleop.dataset.lerobot import export_lerobot
 
     cameras = camera or ["agentview"]
-    with _clear_errors(), _progress(f"rendering {', '.join(cameras)}") as progress:
+    with clear_errors(), _progress(f"rendering {', '.join(cameras)}") as progress:
         writer = export_robomimic if format == "robomimic" else export_lerobot
         written = writer(dataset, output, cameras, width, height, progress)
     console.print(f"{format} export: {written}")

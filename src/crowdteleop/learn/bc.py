@@ -1,0 +1,272 @@
+"""Behaviour cloning with an RNN policy (robomimic's BC-RNN): training, checkpoints, and the
+stateful policy the evaluators step.
+
+A checkpoint is a plain dict in one ``torch.save`` file, loadable with ``weights_only=True``:
+the config, the observation keys and their sizes, the normalisation, the weights, and what
+rebuilds the dataset's environments (``env_args``, ``sim_config``), so evaluating needs
+nothing but the checkpoint.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import torch
+
+from crowdteleop.learn.config import BCConfig
+from crowdteleop.learn.data import DemoArrays, LearnData, SequenceSampler, load_learn_data
+from crowdteleop.learn.model import RNNPolicyNet, RNNState
+
+CHECKPOINT_FORMAT = "crowdteleop-bc-rnn"
+CHECKPOINT_VERSION = 1
+LOG_FIELDS = ("epoch", "train_loss", "valid_loss", "valid_action_mse", "seconds")
+
+
+@dataclass(frozen=True)
+class EpochLog:
+    epoch: int
+    train_loss: float
+    valid_loss: float | None  # None without valid demos
+    valid_action_mse: float | None  # most likely action vs the demo's, normalised units
+    seconds: float  # since training began
+
+
+@dataclass(frozen=True)
+class TrainReport:
+    checkpoint: Path
+    log: Path
+    epochs: list[EpochLog] = field(default_factory=list)
+    seconds: float = 0.0
+    train_demos: int = 0
+    valid_demos: int = 0
+
+
+@dataclass(frozen=True)
+class Normalisation:
+    """obs -> (obs - mean) / std; actions -> actions / scale, so the tanh head reaches them."""
+
+    obs_mean: npt.NDArray[np.float64]
+    obs_std: npt.NDArray[np.float64]
+    action_scale: npt.NDArray[np.float64]
+
+    @classmethod
+    def fit(cls, demos: list[DemoArrays], standardize_obs: bool) -> Normalisation:
+        obs = np.concatenate([d.obs for d in demos])
+        actions = np.concatenate([d.actions for d in demos])
+        mean, std = np.zeros(obs.shape[1]), np.ones(obs.shape[1])
+        if standardize_obs:
+            mean, std = obs.mean(axis=0), np.maximum(obs.std(axis=0), 1e-3)
+        # OSC actions already lie in [-1, 1] and stay as robomimic trains them; joint
+        # velocities (rad/s) beyond it are divided by their largest magnitude.
+        scale = np.maximum(np.abs(actions).max(axis=0), 1.0)
+        return cls(mean, std, scale)
+
+    def demo(self, demo: DemoArrays) -> DemoArrays:
+        return DemoArrays(
+            demo.name, (demo.obs - self.obs_mean) / self.obs_std, demo.actions / self.action_scale
+        )
+
+
+def train_bc(
+    dataset: Path,
+    output: Path,
+    config: BCConfig,
+    on_epoch: Callable[[EpochLog], None] | None = None,
+    threads: int = 1,
+) -> TrainReport:
+    """Train on the dataset's ``config.train_filter`` demos, log every epoch to
+    ``output/log.csv`` and write ``output/model.pt`` (plus ``model_best_valid.pt`` when there
+    are valid demos, and ``epoch_<n>.pt`` every ``save_every`` epochs)."""
+    torch.set_num_threads(threads)
+    torch.manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+    data = load_learn_data(dataset, config.obs_keys, config.train_filter, config.valid_filter)
+    norm = Normalisation.fit(data.train, config.normalize_obs)
+    train = SequenceSampler([norm.demo(d) for d in data.train], config.seq_length)
+    valid = SequenceSampler([norm.demo(d) for d in data.valid], config.seq_length)
+    net = RNNPolicyNet(sum(data.obs_dims), data.action_dim, config)
+    optimizer = torch.optim.Adam(
+        net.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
+    )
+    output.mkdir(parents=True, exist_ok=True)
+    log_path = output / "log.csv"
+    report = TrainReport(output / "model.pt", log_path, [], 0.0, len(data.train), len(data.valid))
+    started = time.perf_counter()
+    best_valid = float("inf")
+    with open(log_path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, LOG_FIELDS)
+        writer.writeheader()
+        for epoch in range(1, config.epochs + 1):
+            net.train()
+            losses = []
+            for _ in range(config.steps_per_epoch):
+                obs, actions = train.sample(config.batch_size, rng)
+                loss = net.loss(_tensor(obs), _tensor(actions))
+                optimizer.zero_grad()
+                loss.backward()  # type: ignore[no-untyped-call]  # torch leaves it untyped
+                optimizer.step()
+                losses.append(loss.item())
+            valid_loss, valid_mse = _validate(net, valid)
+            row = EpochLog(
+                epoch, float(np.mean(losses)), valid_loss, valid_mse, time.perf_counter() - started
+            )
+            report.epochs.append(row)
+            writer.writerow({k: "" if v is None else v for k, v in vars(row).items()})
+            handle.flush()
+            meta = {"epoch": epoch, "train_seconds": row.seconds}
+            if valid_loss is not None and valid_loss < best_valid:
+                best_valid = valid_loss
+                _save(output / "model_best_valid.pt", net, config, data, norm, meta)
+            if config.save_every and epoch % config.save_every == 0:
+                _save(output / f"epoch_{epoch}.pt", net, config, data, norm, meta)
+            if on_epoch is not None:
+                on_epoch(row)
+    seconds = time.perf_counter() - started
+    _save(
+        report.checkpoint,
+        net,
+        config,
+        data,
+        norm,
+        {"epoch": config.epochs, "train_seconds": seconds},
+    )
+    return TrainReport(
+        report.checkpoint, log_path, report.epochs, seconds, report.train_demos, report.valid_demos
+    )
+
+
+def _tensor(array: npt.NDArray[np.float64]) -> torch.Tensor:
+    return torch.as_tensor(array, dtype=torch.float32)
+
+
+def _validate(net: RNNPolicyNet, valid: SequenceSampler) -> tuple[float | None, float | None]:
+    """Loss and most-likely-action error over every valid window (None without any)."""
+    if not len(valid):
+        return None, None
+    net.eval()
+    losses, errors, weights = [], [], []
+    rows = valid.all_rows()
+    with torch.no_grad():
+        for chunk in np.array_split(rows, max(1, len(rows) // 1000)):
+            obs, actions = valid.windows(chunk)
+            obs_t, actions_t = _tensor(obs), _tensor(actions)
+            losses.append(float(net.loss(obs_t, actions_t)))
+            errors.append(float(((net.most_likely(obs_t) - actions_t) ** 2).mean()))
+            weights.append(len(chunk))
+    return float(np.average(losses, weights=weights)), float(np.average(errors, weights=weights))
+
+
+def _save(
+    path: Path,
+    net: RNNPolicyNet,
+    config: BCConfig,
+    data: LearnData,
+    norm: Normalisation,
+    meta: dict[str, Any],
+) -> None:
+    checkpoint = {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "config": config.model_dump(mode="json"),
+        "obs_keys": list(data.obs_keys),
+        "obs_dims": list(data.obs_dims),
+        "action_dim": data.action_dim,
+        "obs_mean": norm.obs_mean.tolist(),
+        "obs_std": norm.obs_std.tolist(),
+        "action_scale": norm.action_scale.tolist(),
+        "state_dict": net.state_dict(),
+        "dataset": {
+            "path": str(data.path),
+            "env_args": data.env_args,
+            "sim_config": data.sim_config,
+            "task": data.task,
+            "controller": data.controller,
+            "train_demos": len(data.train),
+            "valid_demos": len(data.valid),
+        },
+        **meta,
+    }
+    tmp = path.with_name(f".{path.name}.tmp")
+    torch.save(checkpoint, tmp)
+    tmp.replace(path)  # a reader never sees half a checkpoint
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """A trained policy read back; ``net`` is in eval mode."""
+
+    path: Path
+    config: BCConfig
+    obs_keys: tuple[str, ...]
+    obs_dims: tuple[int, ...]
+    norm: Normalisation
+    net: RNNPolicyNet
+    dataset: dict[str, Any]
+    epoch: int
+    train_seconds: float
+
+
+def load_checkpoint(path: Path) -> Checkpoint:
+    from crowdteleop.learn.data import LearnDataError
+
+    try:
+        raw = torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError) as exc:
+        raise LearnDataError(f"{path}: not a readable checkpoint ({exc})") from exc
+    if not isinstance(raw, dict) or raw.get("format") != CHECKPOINT_FORMAT:
+        raise LearnDataError(f"{path} is not a {CHECKPOINT_FORMAT} checkpoint")
+    config = BCConfig.model_validate(raw["config"])
+    net = RNNPolicyNet(sum(raw["obs_dims"]), int(raw["action_dim"]), config)
+    net.load_state_dict(raw["state_dict"])
+    net.eval()
+    norm = Normalisation(
+        np.asarray(raw["obs_mean"]), np.asarray(raw["obs_std"]), np.asarray(raw["action_scale"])
+    )
+    return Checkpoint(
+        Path(path),
+        config,
+        tuple(raw["obs_keys"]),
+        tuple(raw["obs_dims"]),
+        norm,
+        net,
+        dict(raw["dataset"]),
+        int(raw["epoch"]),
+        float(raw["train_seconds"]),
+    )
+
+
+class Policy:
+    """A checkpoint stepped one observation at a time. As robomimic's ``BC_RNN.get_action``,
+    the LSTM state starts from zero every ``rnn_horizon`` steps (the trained sequence length
+    unless told; 0: carried through the whole episode) and at every ``reset``."""
+
+    def __init__(self, checkpoint: Checkpoint, rnn_horizon: int | None = None) -> None:
+        self.checkpoint = checkpoint
+        self.rnn_horizon = checkpoint.config.seq_length if rnn_horizon is None else rnn_horizon
+        self._state: RNNState | None = None
+        self._steps = 0
+        self._generator = torch.Generator().manual_seed(0)
+
+    def reset(self, seed: int = 0) -> None:
+        self._state, self._steps = None, 0
+        self._generator.manual_seed(seed)
+
+    def act(self, obs: Mapping[str, npt.NDArray[np.float64]]) -> npt.NDArray[np.float64]:
+        """The action for one observation dict (robomimic's keys); extra keys are ignored."""
+        ckpt = self.checkpoint
+        flat = np.concatenate([np.asarray(obs[k], dtype=np.float64).ravel() for k in ckpt.obs_keys])
+        if flat.shape != (sum(ckpt.obs_dims),):
+            raise ValueError(f"observation of size {flat.shape} for keys of sizes {ckpt.obs_dims}")
+        x = _tensor(((flat - ckpt.norm.obs_mean) / ckpt.norm.obs_std)[None])
+        if self.rnn_horizon and self._steps % self.rnn_horizon == 0:
+            self._state = None
+        action, self._state = ckpt.net.act(x, self._state, self._generator)
+        self._steps += 1
+        return action[0].double().numpy() * ckpt.norm.action_scale

@@ -1,0 +1,153 @@
+"""``crowdteleop learn bc | eval`` (torch and the simulators load inside the commands, so
+``crowdteleop --help`` stays fast)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from crowdteleop.dataset.cli import clear_errors
+
+app = typer.Typer(help="Train policies on datasets and evaluate them.", no_args_is_help=True)
+console = Console(soft_wrap=True)
+Head = Literal["gmm", "deterministic"]
+SimChoice = Literal["ours", "robosuite", "both"]
+
+
+@app.command()
+def bc(
+    dataset: Annotated[Path, typer.Argument(help="dataset with low-dim obs (dataset build)")],
+    output: Annotated[Path, typer.Option(help="directory for model.pt and log.csv")],
+    epochs: Annotated[int, typer.Option(help="epochs of --steps-per-epoch gradient steps")] = 200,
+    seed: Annotated[int, typer.Option(help="seed of weights and batches")] = 0,
+    head: Annotated[Head, typer.Option(help="deterministic or gmm (5 modes)")] = "deterministic",
+    lr: Annotated[float, typer.Option(help="Adam learning rate")] = 1e-4,
+    batch_size: Annotated[int, typer.Option(help="sequences per batch")] = 100,
+    seq_length: Annotated[int, typer.Option(help="sequence length (RNN horizon)")] = 10,
+    hidden_dim: Annotated[int, typer.Option(help="LSTM hidden size")] = 400,
+    num_layers: Annotated[int, typer.Option(help="LSTM layers")] = 2,
+    steps_per_epoch: Annotated[int, typer.Option(help="gradient steps per epoch")] = 100,
+    obs_key: Annotated[
+        list[str] | None, typer.Option(help="observation keys in order (default: robomimic's)")
+    ] = None,
+    normalize_obs: Annotated[bool, typer.Option(help="standardize observations")] = False,
+    train_filter: Annotated[str, typer.Option(help="mask/<key> to train on")] = "train",
+    valid_filter: Annotated[str, typer.Option(help="mask/<key> to validate on")] = "valid",
+    save_every: Annotated[int, typer.Option(help="keep epoch_<n>.pt every n epochs")] = 0,
+    threads: Annotated[int, typer.Option(help="torch CPU threads")] = 1,
+) -> None:
+    """Train a BC-RNN policy (robomimic's low-dim BC-RNN) on a dataset."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+    )
+
+    from crowdteleop.learn.bc import EpochLog, train_bc
+    from crowdteleop.learn.config import STOCK_OBS_KEYS, BCConfig
+
+    with clear_errors():
+        config = BCConfig(
+            obs_keys=tuple(obs_key or STOCK_OBS_KEYS),
+            head=head,
+            learning_rate=lr,
+            batch_size=batch_size,
+            seq_length=seq_length,
+            hidden_dim=hidden_dim,
+            num_layers=num_layers,
+            epochs=epochs,
+            steps_per_epoch=steps_per_epoch,
+            normalize_obs=normalize_obs,
+            train_filter=train_filter,
+            valid_filter=valid_filter,
+            seed=seed,
+            save_every=save_every,
+        )
+        columns = (
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeRemainingColumn(),
+            TextColumn("{task.fields[loss]}"),
+        )
+        with Progress(*columns, console=console) as bar:
+            job = bar.add_task("epochs", total=epochs, loss="")
+
+            def advance(row: EpochLog) -> None:
+                valid = "" if row.valid_loss is None else f", valid {row.valid_loss:.3f}"
+                bar.update(job, completed=row.epoch, loss=f"loss {row.train_loss:.3f}{valid}")
+
+            report = train_bc(dataset, output, config, advance, threads)
+    last = report.epochs[-1]
+    console.print(
+        f"{report.checkpoint}: {epochs} epochs on {report.train_demos} demos "
+        f"({report.valid_demos} valid) in {report.seconds:.0f} s; loss {last.train_loss:.3f}"
+        + ("" if last.valid_loss is None else f", valid {last.valid_loss:.3f}")
+        + f"; log: {report.log}"
+    )
+
+
+@app.command("eval")
+def evaluate_command(
+    checkpoint: Annotated[Path, typer.Argument(help="model.pt from `learn bc`")],
+    episodes: Annotated[int, typer.Option(help="rollouts per simulation")] = 20,
+    sim: Annotated[SimChoice, typer.Option(help="ours, robosuite (env_args) or both")] = "both",
+    horizon: Annotated[
+        int | None, typer.Option(help="steps per rollout (default: 400 lift, 500 otherwise)")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="seed of the first episode")] = 0,
+    rnn_horizon: Annotated[
+        int | None,
+        typer.Option(help="restart the LSTM state every n steps (default: seq length; 0 never)"),
+    ] = None,
+    output: Annotated[
+        Path | None, typer.Option(help="JSON to write (default: eval.json beside the model)")
+    ] = None,
+    threads: Annotated[int, typer.Option(help="torch CPU threads")] = 1,
+) -> None:
+    """Roll a trained policy out in our simulation and/or plain robosuite; success rates."""
+    import torch
+
+    from crowdteleop.learn.bc import load_checkpoint
+    from crowdteleop.learn.rollout import EvalReport, evaluate
+
+    torch.set_num_threads(threads)
+    sims: list[Literal["ours", "robosuite"]] = ["ours", "robosuite"] if sim == "both" else [sim]
+    reports: list[EvalReport] = []
+    with clear_errors():
+        policy = load_checkpoint(checkpoint)
+        for name in sims:
+            with console.status(f"{episodes} rollouts in {name}..."):
+                reports.append(evaluate(policy, name, episodes, horizon, seed, rnn_horizon))
+    console.print(results_table(reports))
+    target = output or checkpoint.with_name("eval.json")
+    result: dict[str, Any] = {
+        "checkpoint": str(checkpoint),
+        "epoch": policy.epoch,
+        "task": policy.dataset.get("task"),
+        "controller": policy.dataset.get("controller"),
+        "results": {r.sim: r.summary() for r in reports},
+    }
+    target.write_text(json.dumps(result, indent=2))
+    console.print(f"written: {target}")
+
+
+def results_table(reports: list[Any]) -> Table:
+    table = Table("simulation", "episodes", "successes", "success rate", "mean steps to success")
+    for report in reports:
+        steps = report.mean_steps_to_success
+        table.add_row(
+            report.sim,
+            str(len(report.episodes)),
+            str(sum(e.success for e in report.episodes)),
+            f"{report.success_rate:.0%}",
+            "-" if steps is None else f"{steps:.0f}",
+        )
+    return table

@@ -1,0 +1,162 @@
+"""A built dataset read for learning: each demo's low-dim observations concatenated in a fixed
+key order, its actions, the train / valid split, and what rebuilds its environments.
+
+Sequences are drawn as robomimic's ``SequenceDataset`` draws them (``pad_seq_length``): any
+step may start one, and a sequence running past the demo's end repeats its last step, so the
+policy learns the final steps as often as the first.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import numpy.typing as npt
+
+from crowdteleop.errors import CrowdteleopError
+
+Array = npt.NDArray[np.float64]
+
+
+class LearnDataError(CrowdteleopError, ValueError):
+    """A dataset that cannot train a policy (no observations, unknown keys, empty split)."""
+
+
+@dataclass(frozen=True)
+class DemoArrays:
+    name: str
+    obs: Array  # (N, D): the observation keys concatenated in order
+    actions: Array  # (N, A)
+
+
+@dataclass(frozen=True)
+class LearnData:
+    """Everything training needs of a dataset, read once into memory (low-dim data is small)."""
+
+    path: Path
+    obs_keys: tuple[str, ...]
+    obs_dims: tuple[int, ...]
+    train: list[DemoArrays]
+    valid: list[DemoArrays]
+    env_args: dict[str, Any]
+    sim_config: dict[str, Any]
+    task: str
+    controller: str
+
+    @property
+    def action_dim(self) -> int:
+        return int(self.train[0].actions.shape[1])
+
+
+def load_learn_data(
+    path: Path,
+    obs_keys: tuple[str, ...],
+    train_filter: str = "train",
+    valid_filter: str | None = "valid",
+) -> LearnData:
+    """The dataset's demos under the two filter keys; refuses a dataset without ``obs/``."""
+    try:
+        file = h5py.File(path, "r")
+    except OSError as exc:
+        raise LearnDataError(f"{path}: not a readable HDF5 dataset ({exc})") from exc
+    with file:
+        if "data" not in file or not len(file["data"]):
+            raise LearnDataError(f"{path} holds no demonstrations (no data/demo_*)")
+        data = file["data"]
+        first = data[_demo_names(data)[0]]
+        if "obs" not in first:
+            raise LearnDataError(
+                f"{path} has no observations (data/demo_*/obs); rebuild it with "
+                "`crowdteleop dataset build ... --obs low-dim`"
+            )
+        missing = [key for key in obs_keys if key not in first["obs"]]
+        if missing:
+            raise LearnDataError(
+                f"{path} lacks observation keys {missing}; it has {sorted(first['obs'])}"
+            )
+        train = [_read_demo(data[name], obs_keys) for name in _members(file, train_filter)]
+        if not train:
+            raise LearnDataError(f"{path}: filter key {train_filter!r} lists no demos")
+        valid = (
+            [_read_demo(data[name], obs_keys) for name in _members(file, valid_filter)]
+            if valid_filter is not None and f"mask/{valid_filter}" in file
+            else []
+        )
+        metadata = json.loads(_text(first.attrs.get("metadata", "{}")))
+        return LearnData(
+            path=Path(path),
+            obs_keys=obs_keys,
+            obs_dims=tuple(int(first["obs"][key].shape[1]) for key in obs_keys),
+            train=train,
+            valid=valid,
+            env_args=json.loads(_text(data.attrs.get("env_args", "{}"))),
+            sim_config=dict(metadata.get("sim_config") or {}),
+            task=_text(first.attrs.get("task", metadata.get("task", ""))),
+            controller=_text(first.attrs.get("controller", metadata.get("controller") or "")),
+        )
+
+
+def _demo_names(data: h5py.Group) -> list[str]:
+    return sorted(data, key=lambda name: int(name.rpartition("_")[2]))
+
+
+def _members(file: h5py.File, filter_key: str | None) -> list[str]:
+    if filter_key is None:
+        return []
+    if f"mask/{filter_key}" not in file:
+        raise LearnDataError(
+            f"no filter key {filter_key!r}; the dataset has {sorted(file.get('mask', {}))}"
+        )
+    return [_text(name) for name in file[f"mask/{filter_key}"][()]]
+
+
+def _read_demo(group: h5py.Group, obs_keys: tuple[str, ...]) -> DemoArrays:
+    obs = np.concatenate(
+        [
+            np.asarray(group["obs"][key], dtype=np.float64).reshape(len(group["actions"]), -1)
+            for key in obs_keys
+        ],
+        axis=1,
+    )
+    actions = np.asarray(group["actions"], dtype=np.float64)
+    return DemoArrays(group.name.rpartition("/")[2], obs, actions)
+
+
+def _text(value: Any) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+class SequenceSampler:
+    """Random fixed-length windows from a list of demos, padded past each demo's end."""
+
+    def __init__(self, demos: list[DemoArrays], seq_length: int) -> None:
+        self.seq_length = seq_length
+        self._obs = [d.obs for d in demos]
+        self._actions = [d.actions for d in demos]
+        # every (demo, start) pair: robomimic samples windows uniformly over them
+        self._starts = np.array(
+            [(i, t) for i, d in enumerate(demos) for t in range(len(d.actions))], dtype=np.int64
+        )
+
+    def __len__(self) -> int:
+        return len(self._starts)
+
+    def windows(self, rows: npt.NDArray[np.int64]) -> tuple[Array, Array]:
+        """The windows starting at ``self._starts[rows]``: obs (B, T, D), actions (B, T, A)."""
+        obs, actions = [], []
+        offsets = np.arange(self.seq_length)
+        for demo, start in self._starts[rows]:
+            steps = np.minimum(start + offsets, len(self._actions[demo]) - 1)
+            obs.append(self._obs[demo][steps])
+            actions.append(self._actions[demo][steps])
+        return np.stack(obs), np.stack(actions)
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> tuple[Array, Array]:
+        return self.windows(rng.integers(0, len(self._starts), size=batch_size))
+
+    def all_rows(self) -> npt.NDArray[np.int64]:
+        return np.arange(len(self._starts))

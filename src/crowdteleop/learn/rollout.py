@@ -1,0 +1,202 @@
+"""A trained policy run closed loop in the two simulations a dataset can name: ours, rebuilt
+from the demos' recorded ``sim_config``, and plain robosuite, rebuilt from ``env_args`` alone
+(what a robomimic user would do with our file). The gap between the two is the measure of
+"policies transfer".
+
+Both reseed robosuite's ``env.rng`` per episode (robosuite draws object placement and joint
+noise from it), so episode ``k`` starts from the same scene in both; success is
+``env._check_success()`` at any step, and an episode ends at its first success.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, Literal, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from crowdteleop.learn.bc import Checkpoint, Policy
+
+SimName = Literal["ours", "robosuite"]
+Obs = dict[str, npt.NDArray[np.float64]]
+HORIZONS = {"Lift": 400, "PickPlaceCan": 500}  # robomimic's rollout horizons
+DEFAULT_HORIZON = 500
+PLAIN_DEFAULTS = {
+    "has_renderer": False,
+    "has_offscreen_renderer": False,
+    "use_camera_obs": False,
+    "ignore_done": True,
+}
+TRACE_KEYS = ("robot0_eef_pos", "robot0_gripper_qpos", "object")
+
+
+class RolloutEnv(Protocol):
+    """The little the evaluator needs of an environment."""
+
+    def reset(self, seed: int) -> Obs: ...
+
+    def step(self, action: npt.NDArray[np.float64]) -> tuple[Obs, bool]: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class EpisodeOutcome:
+    seed: int
+    success: bool
+    steps: int  # to the first success, else the horizon
+    trace: dict[str, list[list[float]]] | None = None  # TRACE_KEYS and actions, per step
+
+
+@dataclass(frozen=True)
+class EvalReport:
+    sim: SimName
+    horizon: int
+    episodes: list[EpisodeOutcome] = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def success_rate(self) -> float:
+        return sum(e.success for e in self.episodes) / max(1, len(self.episodes))
+
+    @property
+    def mean_steps_to_success(self) -> float | None:
+        steps = [e.steps for e in self.episodes if e.success]
+        return float(np.mean(steps)) if steps else None
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "sim": self.sim,
+            "episodes": len(self.episodes),
+            "successes": sum(e.success for e in self.episodes),
+            "success_rate": self.success_rate,
+            "mean_steps_to_success": self.mean_steps_to_success,
+            "horizon": self.horizon,
+            "seconds": self.seconds,
+            "per_episode": [
+                {"seed": e.seed, "success": e.success, "steps": e.steps} for e in self.episodes
+            ],
+        }
+
+
+def default_horizon(checkpoint: Checkpoint) -> int:
+    return HORIZONS.get(
+        str(checkpoint.dataset.get("env_args", {}).get("env_name")), DEFAULT_HORIZON
+    )
+
+
+def evaluate(
+    checkpoint: Checkpoint,
+    sim: SimName,
+    episodes: int,
+    horizon: int | None = None,
+    seed: int = 0,
+    rnn_horizon: int | None = None,
+    trace: bool = False,
+) -> EvalReport:
+    """``episodes`` rollouts with seeds ``seed, seed + 1, ...`` in one simulation."""
+    horizon = default_horizon(checkpoint) if horizon is None else horizon
+    policy = Policy(checkpoint, rnn_horizon)
+    started = time.perf_counter()
+    outcomes = []
+    with open_env(checkpoint, sim) as env:
+        for k in range(episodes):
+            outcomes.append(run_episode(env, policy, seed + k, horizon, trace))
+    return EvalReport(sim, horizon, outcomes, time.perf_counter() - started)
+
+
+def run_episode(
+    env: RolloutEnv, policy: Policy, seed: int, horizon: int, trace: bool = False
+) -> EpisodeOutcome:
+    obs = env.reset(seed)
+    policy.reset(seed)
+    record: dict[str, list[list[float]]] | None = (
+        {key: [] for key in (*TRACE_KEYS, "action")} if trace else None
+    )
+    for step in range(1, horizon + 1):
+        action = policy.act(obs)
+        if record is not None:
+            for key in TRACE_KEYS:
+                record[key].append(obs[key].tolist())
+            record["action"].append(action.tolist())
+        obs, success = env.step(action)
+        if success:
+            return EpisodeOutcome(seed, True, step, record)
+    return EpisodeOutcome(seed, False, horizon, record)
+
+
+@contextmanager
+def open_env(checkpoint: Checkpoint, sim: SimName) -> Iterator[RolloutEnv]:
+    env: RolloutEnv = OurEnv(checkpoint) if sim == "ours" else PlainRobosuiteEnv(checkpoint)
+    try:
+        yield env
+    finally:
+        env.close()
+
+
+class OurEnv:
+    """The platform's simulation from the demos' ``sim_config`` (fast physics path)."""
+
+    def __init__(self, checkpoint: Checkpoint) -> None:
+        from crowdteleop.learn.data import LearnDataError
+        from crowdteleop.sim import SimConfig, make_simulation
+
+        sim_config = checkpoint.dataset.get("sim_config")
+        if not sim_config:
+            raise LearnDataError("the checkpoint's dataset recorded no sim_config")
+        self.sim = make_simulation(SimConfig(**sim_config))
+
+    def reset(self, seed: int) -> Obs:
+        self.sim.reset(seed)
+        return self.sim.observations()
+
+    def step(self, action: npt.NDArray[np.float64]) -> tuple[Obs, bool]:
+        result = self.sim.step(np.clip(action, self.sim.action_spec.low, self.sim.action_spec.high))
+        return self.sim.observations(), bool(result.success)
+
+    def close(self) -> None:
+        self.sim.close()
+
+
+def plain_env_kwargs(env_args: dict[str, Any]) -> dict[str, Any]:
+    """``env_args["env_kwargs"]`` plus headless defaults for the keys it leaves out."""
+    return {**PLAIN_DEFAULTS, **dict(env_args.get("env_kwargs") or {})}
+
+
+class PlainRobosuiteEnv:
+    """``robosuite.make(env_name, **env_kwargs)`` and nothing of ours but the key renaming."""
+
+    def __init__(self, checkpoint: Checkpoint) -> None:
+        import os
+
+        os.environ.setdefault("PYNPUT_BACKEND", "dummy")  # robosuite.devices wants a display
+        import robosuite
+
+        from crowdteleop.learn.data import LearnDataError
+
+        env_args = checkpoint.dataset.get("env_args") or {}
+        if "env_name" not in env_args:
+            raise LearnDataError("the checkpoint's dataset has no env_args to rebuild robosuite")
+        self.env = robosuite.make(env_args["env_name"], **plain_env_kwargs(env_args))
+        low, high = self.env.action_spec
+        self._low, self._high = np.asarray(low), np.asarray(high)
+
+    def reset(self, seed: int) -> Obs:
+        from crowdteleop.sim.types import low_dim_keys
+
+        # in place: robosuite's placement samplers hold a reference to env.rng
+        self.env.rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
+        return low_dim_keys(self.env.reset())
+
+    def step(self, action: npt.NDArray[np.float64]) -> tuple[Obs, bool]:
+        from crowdteleop.sim.types import low_dim_keys
+
+        obs, _, _, _ = self.env.step(np.clip(action, self._low, self._high))
+        return low_dim_keys(obs), bool(self.env._check_success())
+
+    def close(self) -> None:
+        self.env.close()
