@@ -26,6 +26,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from crowdteleop.learn.actions import ActionKey
 from crowdteleop.learn.bc import EpochLog, load_checkpoint, train_bc
 from crowdteleop.learn.cli import results_table
 from crowdteleop.learn.config import BCConfig, Head
@@ -35,15 +36,19 @@ from crowdteleop.vocab import ControllerName
 app = typer.Typer(add_completion=False)
 console = Console(soft_wrap=True)
 NEAR_M, RISE_M = 0.02, 0.02
+# where the object's world position sits in robosuite's object-state, per environment
+OBJECT_POSITION = {"Lift": slice(0, 3), "PickPlaceCan": slice(7, 10)}
 
 
-def record(task: str, controller: ControllerName, demos: int, directory: Path) -> tuple[int, float]:
+def record(
+    task: str, controller: ControllerName, robot: str, demos: int, directory: Path
+) -> tuple[int, float]:
     """Scripted episodes (seeds 0, 1, ...) until ``demos`` succeeded; (attempts, seconds)."""
     from crowdteleop.dataset.scripted import record_scripted_episode, scripted_rig
 
     started, successes, seed = time.perf_counter(), 0, 0
     directory.mkdir(parents=True, exist_ok=True)
-    with scripted_rig(task, controller) as rig:
+    with scripted_rig(task, controller, robot=robot) as rig:
         while successes < demos and seed < 3 * demos:
             episode = record_scripted_episode(rig, directory, f"{task}-{seed}", seed)
             successes += episode.outcome == "success"
@@ -72,12 +77,12 @@ def build(episodes: Path, output: Path) -> float:
     return time.perf_counter() - started
 
 
-def phases(outcome: EpisodeOutcome) -> dict[str, Any]:
+def phases(outcome: EpisodeOutcome, env_name: str) -> dict[str, Any]:
     """How far a rollout got, from its trace of hand, fingers, object and actions."""
     assert outcome.trace is not None
     hand = np.array(outcome.trace["robot0_eef_pos"])
     fingers = np.array(outcome.trace["robot0_gripper_qpos"])
-    obj = np.array(outcome.trace["object"])[:, :3]
+    obj = np.array(outcome.trace["object"])[:, OBJECT_POSITION.get(env_name, slice(0, 3))]
     gripper = np.array(outcome.trace["action"])[:, -1]
     distance = np.linalg.norm(hand - obj, axis=1)
     rise = obj[:, 2] - obj[0, 2]
@@ -137,11 +142,13 @@ def phase_table(reports: list[EvalReport], details: dict[str, list[dict[str, Any
 def main(
     task: str = "lift",
     controller: ControllerName = "osc",
+    robot: str = "Panda",
     demos: int = 50,
     epochs: int = 200,
     episodes: int = 20,
     seed: int = 0,
     head: Head = "deterministic",
+    actions: ActionKey = "actions",
     lr: float = 1e-4,
     normalize_obs: bool = False,
     save_every: int = 0,
@@ -149,22 +156,25 @@ def main(
     eval_seed: int = 1000,
     out: Path | None = None,
     reuse: bool = typer.Option(True, help="keep episodes / dataset / model already in --out"),
+    dataset_from: Path | None = None,  # train on this built dataset instead of recording
 ) -> None:
     torch.set_num_threads(1)
-    out = out or Path("out") / f"transfer-{task}-{controller}"
+    out = out or Path("out") / f"transfer-{task}-{controller}-{robot.lower()}"
     out.mkdir(parents=True, exist_ok=True)
-    dataset, model = out / "dataset.hdf5", out / "train" / "model.pt"
+    dataset, model = dataset_from or out / "dataset.hdf5", out / "train" / "model.pt"
     result: dict[str, Any] = {
         "task": task,
         "controller": controller,
+        "robot": robot,
         "demos": demos,
         "epochs": epochs,
         "episodes": episodes,
         "head": head,
+        "actions": actions,
         "lr": lr,
     }
     if not (reuse and dataset.exists()):
-        attempts, seconds = record(task, controller, demos, out / "episodes")
+        attempts, seconds = record(task, controller, robot, demos, out / "episodes")
         console.print(f"recorded {attempts} scripted episodes in {seconds:.0f} s")
         result.update(record_attempts=attempts, record_seconds=seconds)
         result["build_seconds"] = build(out / "episodes", dataset)
@@ -173,6 +183,7 @@ def main(
             epochs=epochs,
             seed=seed,
             head=head,
+            actions=actions,
             learning_rate=lr,
             normalize_obs=normalize_obs,
             save_every=save_every,
@@ -202,7 +213,8 @@ def main(
         )
         console.print(f"{sim}: {report.success_rate:.0%} in {time.perf_counter() - started:.0f} s")
         reports.append(report)
-        details[sim] = [phases(e) for e in report.episodes]
+        env_name = str(checkpoint.dataset["env_args"].get("env_name"))
+        details[sim] = [phases(e, env_name) for e in report.episodes]
         for e in report.episodes:
             for key, values in (e.trace or {}).items():
                 traces[f"{sim}/{e.seed}/{key}"] = np.array(values)

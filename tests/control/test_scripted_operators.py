@@ -19,9 +19,15 @@ HUMAN_LIKE = OperatorStyle(
 )
 
 
-def success_rate(task: str, controller: str, seeds, style: OperatorStyle | None = None) -> float:
+def success_rate(
+    task: str,
+    controller: str,
+    seeds,
+    style: OperatorStyle | None = None,
+    robot: str = "Sawyer",
+) -> float:
     control = ControlConfig(controller=controller)
-    sim = make_simulation(SimConfig(task=task, action_mode=control.action_mode))
+    sim = make_simulation(SimConfig(task=task, action_mode=control.action_mode, robot=robot))
     try:
         teleop = Teleoperator(sim, control)
         operator = ScriptedOperator(sim, control.mapping, style=style, seed=1234)
@@ -48,6 +54,14 @@ def test_human_like_operators_still_succeed(task):
 @pytest.mark.parametrize("task", ["lift", "nut-assembly-round"])
 def test_operators_also_succeed_through_robosuite_osc(task):
     assert success_rate(task, "osc", range(200, 205)) >= 0.8
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", ["lift", "pick-place-can"])
+def test_operators_succeed_on_robosuites_default_arm_too(task):
+    """Panda (robosuite's and robomimic's arm for these tasks) reaches less far than Sawyer:
+    the plan drops the can on the near side of its bin quadrant."""
+    assert success_rate(task, "osc", range(300, 305), robot="Panda") >= 0.8
 
 
 def test_the_second_backend_is_driven_by_the_same_operator_and_controller():

@@ -186,3 +186,68 @@ def test_a_dataset_without_observations_is_refused_with_what_to_do(lift_dataset,
     result = runner.invoke(app, ["learn", "bc", str(bare), "--output", str(tmp_path / "x")])
     assert result.exit_code == 2
     assert "--obs low-dim" in result.output
+
+
+@pytest.fixture(scope="module")
+def absolute(lift_dataset, tmp_path_factory):
+    config = BCConfig(epochs=1, head="deterministic", actions="actions_abs", **SMALL)
+    return load_checkpoint(
+        train_bc(lift_dataset, tmp_path_factory.mktemp("bc-abs"), config).checkpoint
+    )
+
+
+def test_an_absolute_policy_learns_the_targets_in_their_continuous_form(absolute, lift_dataset):
+    data = load_learn_data(lift_dataset, STOCK_OBS_KEYS, action_key="actions_abs")
+    assert data.action_dim == 10  # position, two rotation columns, gripper
+    assert data.abs_controller_configs["body_parts"]["right"]["input_type"] == "absolute"
+    assert absolute.config.actions == "actions_abs"
+
+
+@pytest.mark.parametrize("sim", ["ours", "robosuite"])
+def test_an_absolute_policy_rolls_out_in_each_simulation(absolute, sim):
+    report = evaluate(absolute, sim, episodes=1, horizon=8, trace=True)
+    (episode,) = report.episodes
+    assert np.array(episode.trace["action"]).shape == (8, 7)  # the recorded actions_abs layout
+
+
+def test_plain_robosuite_reads_absolute_targets_with_its_absolute_osc(absolute):
+    from crowdteleop.learn.rollout import open_env
+
+    with open_env(absolute, "robosuite") as env:
+        arm = env.env.robots[0].part_controllers["right"]
+        assert arm.input_type == "absolute" and arm.input_ref_frame == "base"
+
+
+def test_the_open_loop_targets_of_a_demo_retrace_it_in_our_simulation(absolute, lift_dataset):
+    """The recorded actions_abs, turned into deltas step by step, put the hand where the
+    demo's own hand went: what makes an absolute policy's targets mean the same here."""
+    import h5py
+
+    from crowdteleop.learn.rollout import open_env
+
+    with h5py.File(lift_dataset) as file:
+        group = file["data/demo_1"]
+        targets, hands = group["actions_abs"][:40], group["obs/robot0_eef_pos"][1:41]
+        seed = json.loads(group.attrs["metadata"])["reset_seed"]
+        start = group["states"][0]
+    with open_env(absolute, "ours") as env:
+        env.reset(seed)
+        env.sim.set_state(start)
+        reached = np.array([env.step(target)[0]["robot0_eef_pos"] for target in targets])
+    assert np.max(np.linalg.norm(reached - hands, axis=1)) < 0.01
+
+
+def test_an_absolute_policy_of_ik_velocity_demos_is_refused_in_our_simulation(absolute):
+    from dataclasses import replace
+
+    from crowdteleop.learn.rollout import open_env
+
+    dataset = json.loads(json.dumps(absolute.dataset))
+    dataset["env_args"]["env_kwargs"]["controller_configs"]["body_parts"]["right"]["type"] = (
+        "JOINT_POSITION"
+    )
+    with (
+        pytest.raises(LearnDataError, match="osc demos only"),
+        open_env(replace(absolute, dataset=dataset), "ours"),
+    ):
+        pass

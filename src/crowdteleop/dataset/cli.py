@@ -148,7 +148,8 @@ def check(
 
     with clear_errors(), _progress("checking") as progress:
         results = check_dataset(path, demos, progress)
-    table = Table("check", "verdict", "detail", title=str(path))
+    table = Table("check", "verdict", title=str(path))
+    table.add_column("detail", overflow="fold")  # names and paths whole, never cut with "..."
     colour = {"pass": "green", "fail": "red", "skip": "yellow"}
     for result in results:
         table.add_row(result.name, f"[{colour[result.verdict]}]{result.verdict}[/]", result.detail)

@@ -119,15 +119,17 @@ def recorded_env_args(demo: Demo) -> dict[str, Any]:
     from crowdteleop.sim import SimConfig
     from crowdteleop.teleop.episode import env_args
 
-    return env_args(SimConfig(**recorded_sim_config(demo))).model_dump(mode="json")
+    return env_args(SimConfig.from_recorded(recorded_sim_config(demo))).model_dump(mode="json")
 
 
 def recorded_sim_config(demo: Demo) -> dict[str, Any]:
-    """The demo's ``sim_config`` as recorded; files made before the finger ramp existed get
-    ``gripper_ramp`` False (their fingers followed each action directly)."""
+    """The demo's ``sim_config`` as recorded, with the values keys added since had then
+    (`SimConfig.from_recorded`): e.g. no finger ramp before ``gripper_ramp`` existed."""
+    from crowdteleop.sim import SimConfig
+
     if not demo.info.sim_config:
         raise DatasetError(f"{demo.name} has no sim_config: it cannot be re-simulated")
-    return {"gripper_ramp": False} | demo.info.sim_config
+    return SimConfig.from_recorded(demo.info.sim_config).model_dump(mode="json")
 
 
 class ReplayChecker:

@@ -53,13 +53,18 @@ class ScriptedRig:
 
 @contextmanager
 def scripted_rig(
-    task: str = "lift", controller: ControllerName = "ik-velocity", model_seed: int = 0
+    task: str = "lift",
+    controller: ControllerName = "ik-velocity",
+    model_seed: int = 0,
+    robot: str = "Sawyer",
 ) -> Iterator[ScriptedRig]:
     """A rig for one task; closes the simulation."""
     from crowdteleop.sim import SimConfig, make_simulation
 
     control = ControlConfig(controller=controller)
-    config = SimConfig(task=task, action_mode=control.action_mode, model_seed=model_seed)
+    config = SimConfig(
+        task=task, action_mode=control.action_mode, model_seed=model_seed, robot=robot
+    )
     sim = make_simulation(config)
     try:
         metadata = episode_metadata(

@@ -20,6 +20,7 @@ import numpy as np
 import numpy.typing as npt
 import torch
 
+from crowdteleop.learn.actions import from_learned
 from crowdteleop.learn.config import BCConfig
 from crowdteleop.learn.data import DemoArrays, LearnData, SequenceSampler, load_learn_data
 from crowdteleop.learn.model import RNNPolicyNet, RNNState
@@ -87,7 +88,9 @@ def train_bc(
     torch.set_num_threads(threads)
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
-    data = load_learn_data(dataset, config.obs_keys, config.train_filter, config.valid_filter)
+    data = load_learn_data(
+        dataset, config.obs_keys, config.train_filter, config.valid_filter, config.actions
+    )
     norm = Normalisation.fit(data.train, config.normalize_obs)
     train = SequenceSampler([norm.demo(d) for d in data.train], config.seq_length)
     valid = SequenceSampler([norm.demo(d) for d in data.valid], config.seq_length)
@@ -188,6 +191,7 @@ def _save(
             "sim_config": data.sim_config,
             "task": data.task,
             "controller": data.controller,
+            "abs_controller_configs": data.abs_controller_configs,
             "train_demos": len(data.train),
             "valid_demos": len(data.valid),
         },
@@ -259,7 +263,8 @@ class Policy:
         self._generator.manual_seed(seed)
 
     def act(self, obs: Mapping[str, npt.NDArray[np.float64]]) -> npt.NDArray[np.float64]:
-        """The action for one observation dict (robomimic's keys); extra keys are ignored."""
+        """The action for one observation dict (robomimic's keys; extra keys are ignored), in
+        the layout of the dataset's ``config.actions`` array."""
         ckpt = self.checkpoint
         flat = np.concatenate([np.asarray(obs[k], dtype=np.float64).ravel() for k in ckpt.obs_keys])
         if flat.shape != (sum(ckpt.obs_dims),):
@@ -269,4 +274,5 @@ class Policy:
             self._state = None
         action, self._state = ckpt.net.act(x, self._state, self._generator)
         self._steps += 1
-        return action[0].double().numpy() * ckpt.norm.action_scale
+        learned = action[0].double().numpy() * ckpt.norm.action_scale
+        return from_learned(learned, ckpt.config.actions)

@@ -12,10 +12,11 @@ from rich.console import Console
 from rich.table import Table
 
 from crowdteleop.dataset.cli import clear_errors
+from crowdteleop.learn.actions import ActionKey
+from crowdteleop.learn.config import Head
 
 app = typer.Typer(help="Train policies on datasets and evaluate them.", no_args_is_help=True)
 console = Console(soft_wrap=True)
-Head = Literal["gmm", "deterministic"]
 SimChoice = Literal["ours", "robosuite", "both"]
 
 
@@ -26,6 +27,9 @@ def bc(
     epochs: Annotated[int, typer.Option(help="epochs of --steps-per-epoch gradient steps")] = 200,
     seed: Annotated[int, typer.Option(help="seed of weights and batches")] = 0,
     head: Annotated[Head, typer.Option(help="deterministic or gmm (5 modes)")] = "deterministic",
+    actions: Annotated[
+        ActionKey, typer.Option(help="learn the deltas, or actions_abs (absolute hand targets)")
+    ] = "actions",
     lr: Annotated[float, typer.Option(help="Adam learning rate")] = 1e-4,
     batch_size: Annotated[int, typer.Option(help="sequences per batch")] = 100,
     seq_length: Annotated[int, typer.Option(help="sequence length (RNN horizon)")] = 10,
@@ -57,6 +61,7 @@ def bc(
         config = BCConfig(
             obs_keys=tuple(obs_key or STOCK_OBS_KEYS),
             head=head,
+            actions=actions,
             learning_rate=lr,
             batch_size=batch_size,
             seq_length=seq_length,

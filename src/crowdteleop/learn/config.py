@@ -7,6 +7,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from crowdteleop.learn.actions import ActionKey
+
 Head = Literal["gmm", "deterministic"]
 
 # robomimic's stock low-dim observation keys, in the order they are concatenated.
@@ -23,6 +25,9 @@ class BCConfig(BaseModel):
 
     obs_keys: tuple[str, ...] = Field(STOCK_OBS_KEYS, min_length=1)
     head: Head = "deterministic"
+    actions: ActionKey = Field(
+        "actions", description="the recorded deltas, or actions_abs: absolute hand targets"
+    )
     num_modes: int = Field(5, ge=1, le=64, description="GMM modes")
     min_std: float = Field(1e-4, gt=0, description="GMM standard deviation floor")
     hidden_dim: int = Field(400, ge=1, le=4096)

@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from crowdteleop.errors import CrowdteleopError
+from crowdteleop.learn.actions import ActionKey, to_learned
 
 Array = npt.NDArray[np.float64]
 
@@ -30,7 +31,7 @@ class LearnDataError(CrowdteleopError, ValueError):
 class DemoArrays:
     name: str
     obs: Array  # (N, D): the observation keys concatenated in order
-    actions: Array  # (N, A)
+    actions: Array  # (N, A): in the form the policy learns (`learn.actions.to_learned`)
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,9 @@ class LearnData:
     sim_config: dict[str, Any]
     task: str
     controller: str
+    action_key: ActionKey = "actions"
+    # robosuite's controller that reads ``actions_abs`` (``actions_abs_controller_configs``)
+    abs_controller_configs: dict[str, Any] | None = None
 
     @property
     def action_dim(self) -> int:
@@ -57,8 +61,10 @@ def load_learn_data(
     obs_keys: tuple[str, ...],
     train_filter: str = "train",
     valid_filter: str | None = "valid",
+    action_key: ActionKey = "actions",
 ) -> LearnData:
-    """The dataset's demos under the two filter keys; refuses a dataset without ``obs/``."""
+    """The dataset's demos under the two filter keys; refuses a dataset without ``obs/`` (or
+    without ``action_key``)."""
     try:
         file = h5py.File(path, "r")
     except OSError as exc:
@@ -78,11 +84,18 @@ def load_learn_data(
             raise LearnDataError(
                 f"{path} lacks observation keys {missing}; it has {sorted(first['obs'])}"
             )
-        train = [_read_demo(data[name], obs_keys) for name in _members(file, train_filter)]
+        if action_key not in first:
+            raise LearnDataError(
+                f"{path} has no {action_key!r} per demo; rebuild it with `crowdteleop dataset "
+                "build` (it writes actions_abs for osc and ik-velocity demos)"
+            )
+        train = [
+            _read_demo(data[name], obs_keys, action_key) for name in _members(file, train_filter)
+        ]
         if not train:
             raise LearnDataError(f"{path}: filter key {train_filter!r} lists no demos")
         valid = (
-            [_read_demo(data[name], obs_keys) for name in _members(file, valid_filter)]
+            [_read_demo(data[name], obs_keys, action_key) for name in _members(file, valid_filter)]
             if valid_filter is not None and f"mask/{valid_filter}" in file
             else []
         )
@@ -97,6 +110,10 @@ def load_learn_data(
             sim_config=dict(metadata.get("sim_config") or {}),
             task=_text(first.attrs.get("task", metadata.get("task", ""))),
             controller=_text(first.attrs.get("controller", metadata.get("controller") or "")),
+            action_key=action_key,
+            abs_controller_configs=json.loads(
+                _text(data.attrs.get("actions_abs_controller_configs", "null"))
+            ),
         )
 
 
@@ -114,7 +131,7 @@ def _members(file: h5py.File, filter_key: str | None) -> list[str]:
     return [_text(name) for name in file[f"mask/{filter_key}"][()]]
 
 
-def _read_demo(group: h5py.Group, obs_keys: tuple[str, ...]) -> DemoArrays:
+def _read_demo(group: h5py.Group, obs_keys: tuple[str, ...], action_key: ActionKey) -> DemoArrays:
     obs = np.concatenate(
         [
             np.asarray(group["obs"][key], dtype=np.float64).reshape(len(group["actions"]), -1)
@@ -122,7 +139,7 @@ def _read_demo(group: h5py.Group, obs_keys: tuple[str, ...]) -> DemoArrays:
         ],
         axis=1,
     )
-    actions = np.asarray(group["actions"], dtype=np.float64)
+    actions = to_learned(np.asarray(group[action_key], dtype=np.float64), action_key)
     return DemoArrays(group.name.rpartition("/")[2], obs, actions)
 
 

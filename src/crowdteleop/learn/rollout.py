@@ -139,22 +139,38 @@ def open_env(checkpoint: Checkpoint, sim: SimName) -> Iterator[RolloutEnv]:
 
 
 class OurEnv:
-    """The platform's simulation from the demos' ``sim_config`` (fast physics path)."""
+    """The platform's simulation from the demos' ``sim_config`` (fast physics path). A policy
+    of absolute targets drives its delta OSC through `AbsoluteTargets.to_delta`."""
 
     def __init__(self, checkpoint: Checkpoint) -> None:
+        from crowdteleop.dataset.absolute import AbsoluteTargets
         from crowdteleop.learn.data import LearnDataError
         from crowdteleop.sim import SimConfig, make_simulation
 
         sim_config = checkpoint.dataset.get("sim_config")
         if not sim_config:
             raise LearnDataError("the checkpoint's dataset recorded no sim_config")
-        self.sim = make_simulation(SimConfig(**sim_config))
+        self.sim = make_simulation(SimConfig.from_recorded(sim_config))
+        self._targets: AbsoluteTargets | None = None
+        if checkpoint.config.actions == "actions_abs":
+            kwargs = checkpoint.dataset.get("env_args", {}).get("env_kwargs", {})
+            arm = kwargs.get("controller_configs", {}).get("body_parts", {}).get("right", {})
+            if arm.get("type") != "OSC_POSE":
+                self.sim.close()
+                raise LearnDataError(
+                    "an actions_abs policy rolls out in our simulation for osc demos only "
+                    f"(these were recorded with {arm.get('type') or 'an unknown controller'}); "
+                    "evaluate it with --sim robosuite"
+                )
+            self._targets = AbsoluteTargets(self.sim.kinematics(), arm)
 
     def reset(self, seed: int) -> Obs:
         self.sim.reset(seed)
         return self.sim.observations()
 
     def step(self, action: npt.NDArray[np.float64]) -> tuple[Obs, bool]:
+        if self._targets is not None:
+            action = self._targets.to_delta(self.sim.get_state(), action)
         result = self.sim.step(np.clip(action, self.sim.action_spec.low, self.sim.action_spec.high))
         return self.sim.observations(), bool(result.success)
 
@@ -181,7 +197,13 @@ class PlainRobosuiteEnv:
         env_args = checkpoint.dataset.get("env_args") or {}
         if "env_name" not in env_args:
             raise LearnDataError("the checkpoint's dataset has no env_args to rebuild robosuite")
-        self.env = robosuite.make(env_args["env_name"], **plain_env_kwargs(env_args))
+        kwargs = plain_env_kwargs(env_args)
+        if checkpoint.config.actions == "actions_abs":
+            configs = checkpoint.dataset.get("abs_controller_configs")
+            if not configs:
+                raise LearnDataError("the dataset named no actions_abs_controller_configs")
+            kwargs["controller_configs"] = configs  # robosuite's OSC in absolute input mode
+        self.env = robosuite.make(env_args["env_name"], **kwargs)
         low, high = self.env.action_spec
         self._low, self._high = np.asarray(low), np.asarray(high)
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from crowdteleop.tasks import get_task
@@ -24,6 +27,13 @@ class SimConfig(BaseModel):
         "steps), so recorded gripper actions act in plain robosuite as they did here; False "
         "commands the fingers directly, as recordings made before 2026-12-02 were simulated",
     )
+    exclude_base_contacts: bool = Field(
+        True,
+        description="exclude contacts between an arm's first link and its static base, which "
+        "MuJoCo's parent filter misses: on robosuite's Sawyer their friction holds joint 0 "
+        "still, and the hand cannot reach Lift's cube. False keeps robosuite's own model "
+        "exactly, as `robosuite.make(**env_args)` builds it (docs/dataset.md)",
+    )
     model_seed: int = Field(
         0,
         ge=0,
@@ -31,8 +41,17 @@ class SimConfig(BaseModel):
         "recorded config rebuilds the very model its episodes were recorded on",
     )
 
+    @classmethod
+    def from_recorded(cls, recorded: Mapping[str, Any]) -> SimConfig:
+        """The config a recording was made with: a key it lacks takes the value it had then."""
+        return cls(**(RECORDED_BEFORE_KEY | dict(recorded)))
+
     @field_validator("task")
     @classmethod
     def _task_exists(cls, name: str) -> str:
         get_task(name)  # raises UnknownTaskError listing the known tasks
         return name
+
+
+# Fields added after recordings began, with the behaviour recordings made before them had.
+RECORDED_BEFORE_KEY: dict[str, Any] = {"gripper_ramp": False}

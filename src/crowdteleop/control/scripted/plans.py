@@ -33,6 +33,7 @@ class ScriptedScene(Protocol):
 Plan = Callable[[ScriptedScene], Iterator[Waypoint]]
 
 HOVER_M = 0.10
+DROP_NEAR_SIDE_M = 0.05
 
 
 def _object_name(sim: ScriptedScene) -> str:
@@ -69,9 +70,14 @@ def lift(sim: ScriptedScene) -> Iterator[Waypoint]:
 
 def pick_place(sim: ScriptedScene) -> Iterator[Waypoint]:
     name = _object_name(sim)
+    home = sim.robot_state().end_effector.position
     yield from _pick(sim, name, 0.0, np.pi / 2, grasp_depth=0.01)
     hand = sim.robot_state().end_effector
-    target = sim.object_poses()[f"{name}/target"].position
+    target = sim.object_poses()[f"{name}/target"].position.copy()
+    # drop on the near side of the target, within the bin's quadrant: shorter arms (Panda)
+    # cannot stretch to its centre with the can held high
+    toward_home = home[:2] - target[:2]
+    target[:2] += DROP_NEAR_SIDE_M * toward_home / max(float(np.linalg.norm(toward_home)), 1e-9)
     carry_z = target[2] + 0.30
     yield Waypoint(at([*hand.position[:2], carry_z], hand.rotation), True, 0.03, label="lift")
     yield Waypoint(at([*target[:2], carry_z], hand.rotation), True, 0.02, label="carry")

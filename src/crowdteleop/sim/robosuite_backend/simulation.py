@@ -211,10 +211,15 @@ class RobosuiteSimulation:
     def _load_fixed_model(self) -> None:
         """Recompile robosuite's model for our fast path.
 
-        `self._xml` (what demonstrations save, what robosuite replays) is robosuite's model with
-        `model_fixes`; the compiled physics model adds `fast_model`'s actuators to it.
+        `self._xml` (what demonstrations save, what robosuite replays) is robosuite's model,
+        with `model_fixes` if the config asks for them; the compiled physics model adds
+        `fast_model`'s actuators to it.
         """
-        pairs = model_fixes.static_parent_pairs(self._env.sim.model._model)
+        pairs = (
+            model_fixes.static_parent_pairs(self._env.sim.model._model)
+            if self.config.exclude_base_contacts
+            else []
+        )
         robot = self._env.robots[0]
         parked = [obj.root_body for obj in tasks.hidden_objects(self._env)]
 
