@@ -81,7 +81,10 @@ def test_bot_sessions_build_a_dataset_robosuite_and_robomimic_accept(tmp_path, c
     if robot == "Sawyer":
         # our Sawyer model excludes its base contact; robosuite's own (from env_args) keeps it
         assert verdicts.pop("scene from env_args") == "fail"
-        assert "robot0_right_arm_base_link/robot0_right_l0" in details["scene from env_args"]
+        assert (
+            "robot0_right_arm_base_link/robot0_right_l0 (100% of states)"
+            in details["scene from env_args"]
+        )
         assert "scene from env_args" in result.output
         assert result.exit_code == 1
     else:
