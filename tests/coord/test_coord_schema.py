@@ -3,39 +3,27 @@ arrives, valid or not, the answer is never a 5xx, and every error has the docume
 
 from __future__ import annotations
 
-import socket
-import threading
 import time
 
 import httpx
 import pytest
 import schemathesis
-import uvicorn
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from schemathesis import GenerationMode
 
 from crowdteleop.coord.app import create_app
-from tests.fixtures.coord import ADMIN, FakeLauncher, coord_config
+from tests.fixtures.coord import ADMIN, FakeLauncher, coord_config, served_app
 
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture
 def live_app(tmp_path):
-    """The app served by uvicorn in a thread, with a worker whose session is ready."""
-    app = create_app(coord_config(tmp_path, capacity=2), FakeLauncher())
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    url = f"http://127.0.0.1:{sock.getsockname()[1]}"
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning"))
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30
-    while not server.started:
-        assert time.monotonic() < deadline, "uvicorn did not start"
-        time.sleep(0.05)
-    with httpx.Client(base_url=url, timeout=30) as http:
+    """The app served by uvicorn in a thread, with a worker whose session is ready (and its
+    schema served: `api_docs` is off by default)."""
+    app = create_app(coord_config(tmp_path, capacity=2, api_docs=True), FakeLauncher())
+    with served_app(app) as url, httpx.Client(base_url=url, timeout=30) as http:
         token = http.post("/api/join", json={"params": {}}).json()["worker_token"]
         headers = {"Authorization": f"Bearer {token}"}
         sid = http.post("/api/sessions", headers=headers).json()["session_id"]
@@ -46,12 +34,8 @@ def live_app(tmp_path):
             time.sleep(0.05)
         report = launcher.handles[sid].config.report_token
         schema = http.get("/openapi.json").json()
-    tokens = {"worker": token, "phone": phone, "admin": ADMIN, "report": report}
-    try:
+        tokens = {"worker": token, "phone": phone, "admin": ADMIN, "report": report}
         yield url, schema, sid, tokens
-    finally:
-        server.should_exit = True
-        thread.join(timeout=30)
 
 
 def _token_for(path: str, tokens: dict[str, str]) -> str:

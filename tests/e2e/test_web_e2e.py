@@ -198,8 +198,8 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path, screenshots
                 await admin_page.fill("#token", ADMIN)
                 await admin_page.click("#login button")
                 await admin_page.wait_for_selector("#overview:not([hidden])")
-                await admin_page.wait_for_function(
-                    "document.querySelectorAll('#sessions tr').length > 1"
+                await admin_page.wait_for_function(  # a function: the CSP refuses eval
+                    "() => document.querySelectorAll('#sessions tr').length > 1"
                     " && document.querySelectorAll('#queue tr').length > 1"
                 )
                 results["admin_sessions"] = await admin_page.inner_text("#sessions")

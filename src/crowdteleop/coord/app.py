@@ -15,6 +15,7 @@ from crowdteleop.coord import api_admin, api_internal, api_pairing, api_sessions
 from crowdteleop.coord.config import CoordConfig
 from crowdteleop.coord.db import make_engine, migrate
 from crowdteleop.coord.errors import BodyLimitMiddleware, install_error_handlers
+from crowdteleop.coord.headers import SecurityHeadersMiddleware
 from crowdteleop.coord.launcher import Launcher, LocalProcessLauncher
 from crowdteleop.coord.reaper import run_reaper
 from crowdteleop.coord.security import FailureLimiter
@@ -57,8 +58,14 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         description="Workers join, queue for a dedicated teleop server, pair a phone, and "
         "teleoperate; see docs/coordination.md.",
         lifespan=lifespan,
+        openapi_url="/openapi.json" if config.api_docs else None,
+        docs_url="/docs" if config.api_docs else None,
+        redoc_url="/redoc" if config.api_docs else None,
     )
     app.add_middleware(BodyLimitMiddleware, max_bytes=config.max_body_bytes)
+    # Outermost, so even the body limit's 413 carries the headers.
+    docs_pages = ("/docs", "/docs/oauth2-redirect", "/redoc") if config.api_docs else ()
+    app.add_middleware(SecurityHeadersMiddleware, docs_paths=docs_pages)
     install_error_handlers(app)
     app.include_router(api_sessions.router)
     app.include_router(api_pairing.router)

@@ -40,6 +40,11 @@ class CoordConfig(BaseModel):
     pairing_ttl_s: float = Field(120.0, gt=0)
     pair_failures_per_minute: int = Field(10, ge=1, description="wrong codes per client IP")
     max_body_bytes: int = Field(256 * 1024, ge=1024)
+    api_docs: bool = Field(
+        False,
+        description="serve the API's schema and docs (/openapi.json, /docs, /redoc): a map of "
+        "every endpoint, so off unless you are developing against it",
+    )
     teleop: dict[str, Any] = Field(
         default_factory=dict,
         description="TeleopConfig fields every session gets (video, limits, ...)",

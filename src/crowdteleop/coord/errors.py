@@ -11,6 +11,8 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from crowdteleop.coord.headers import security_headers
+
 log = logging.getLogger(__name__)
 
 STATUS_CODES = {
@@ -60,9 +62,11 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(Exception)
     async def unexpected(_request: Request, exc: Exception) -> JSONResponse:
-        # A bug, never the client's input (the schema tests hunt for these).
+        # A bug, never the client's input (the schema tests hunt for these). This answer leaves
+        # from outside every middleware, so it brings the security headers itself.
         log.error("unhandled error", exc_info=exc)
-        return error_response(500, "internal", "unexpected server error; it has been logged")
+        message = "unexpected server error; it has been logged"
+        return error_response(500, "internal", message, security_headers())
 
     @app.exception_handler(RequestValidationError)
     async def invalid(_request: Request, exc: RequestValidationError) -> JSONResponse:

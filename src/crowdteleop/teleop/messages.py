@@ -7,16 +7,27 @@ Importing this module loads no simulator (pydantic and the vocabularies only).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from crowdteleop.teleop.protocol import PeerRole
 from crowdteleop.vocab import DeviceKind, Outcome
 
 MAX_OFFER_BYTES = 64 * 1024
 Token = Annotated[str, Field(min_length=8, max_length=256)]
+
+# What an episode report may claim: far beyond any real episode (task limits are minutes, control
+# at most 500 Hz), far below what a database integer or the statistics can hold.
+MAX_EPISODE_STEPS = 10**7
+MAX_EPISODE_NUMBER = 10**6
+MAX_EPISODE_DURATION_S = 86_400.0
+MAX_TELEMETRY_DEPTH = 8
+StepCount = Annotated[int, Field(ge=0, le=MAX_EPISODE_STEPS)]
+EpisodeNumber = Annotated[int, Field(ge=0, le=MAX_EPISODE_NUMBER)]
+EpisodeDurationS = Annotated[float, Field(ge=0, le=MAX_EPISODE_DURATION_S, allow_inf_nan=False)]
 
 
 class OfferRequest(BaseModel):
@@ -62,13 +73,33 @@ class EpisodeReport(BaseModel):
 
     session_id: str = Field(max_length=64)
     worker_id: str = Field(max_length=64)
-    episode: int = Field(ge=0)
+    episode: EpisodeNumber
     episode_id: str = Field(min_length=1, max_length=64)
     outcome: Outcome
-    steps: int = Field(ge=0)
-    duration_s: float = Field(ge=0)
+    steps: StepCount
+    duration_s: EpisodeDurationS
     uri: str = Field(max_length=4096)
-    telemetry: dict[str, Any] = Field(default_factory=dict)
+    telemetry: dict[str, Any] = Field(
+        default_factory=dict,
+        description=f"JSON with finite numbers, nested at most {MAX_TELEMETRY_DEPTH} deep",
+    )
     device: DeviceKind | None = Field(
         None, description="the device that drove the episode, when the server knows it"
     )
+
+    @field_validator("telemetry")
+    @classmethod
+    def _storable(cls, telemetry: dict[str, Any]) -> dict[str, Any]:
+        """Python's JSON parser takes NaN and Infinity; a database's JSON column does not."""
+        _check_json(telemetry, MAX_TELEMETRY_DEPTH)
+        return telemetry
+
+
+def _check_json(value: Any, depth: int) -> None:
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError("numbers must be finite (no NaN or Infinity)")
+    if isinstance(value, dict | list):
+        if depth <= 0:
+            raise ValueError(f"nested more than {MAX_TELEMETRY_DEPTH} deep")
+        for item in value.values() if isinstance(value, dict) else value:
+            _check_json(item, depth - 1)

@@ -1,0 +1,96 @@
+"""What a teleop server may report (`POST /internal/episodes`): numbers out of range or not
+finite are refused with a 422, and the coordinator and its statistics carry on unharmed."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from crowdteleop.teleop.messages import (
+    MAX_EPISODE_DURATION_S,
+    MAX_EPISODE_NUMBER,
+    MAX_EPISODE_STEPS,
+)
+from tests.fixtures.coord import ADMIN, Api, FakeLauncher, coord_config, in_process_app
+
+pytestmark = pytest.mark.filterwarnings("ignore:Using `httpx`")
+
+
+@pytest.fixture
+def reporting(tmp_path, database_url):
+    """A coordinator on each database, a ready session, and `post(raw_json_fields)`."""
+    launcher = FakeLauncher()
+    config = coord_config(tmp_path, database_url, capacity=1)
+    with in_process_app(config, launcher) as client:
+        api = Api(client)
+        token = api.join()["worker_token"]
+        sid = api.new_session(token)["session_id"]
+        api.wait_state(token, sid, "ready")
+        teleop = launcher.handles[sid].config
+        headers = {
+            "Authorization": f"Bearer {teleop.report_token}",
+            "Content-Type": "application/json",
+        }
+        count = iter(range(1_000_000))
+
+        def post(**raw: str):
+            """Fields given as raw JSON text (so NaN and Infinity reach the server as sent)."""
+            fields = {
+                "session_id": json.dumps(sid),
+                "worker_id": json.dumps(teleop.worker_id),
+                "episode": "1",
+                "episode_id": json.dumps(f"ep{next(count)}"),
+                "outcome": '"success"',
+                "steps": "70",
+                "duration_s": "3.5",
+                "uri": '"file:///data/ep.hdf5"',
+                "telemetry": '{"fps": 20.0}',
+                **raw,
+            }
+            body = "{" + ",".join(f'"{k}": {v}' for k, v in fields.items()) + "}"
+            return client.post("/internal/episodes", content=body, headers=headers)
+
+        yield client, api, post
+
+
+def _refused(response, field: str) -> None:
+    assert response.status_code == 422, response.text
+    body = response.json()
+    assert body["error"] == "invalid_request" and field in body["message"], body
+
+
+def test_huge_or_negative_counts_are_refused_and_the_coordinator_keeps_answering(reporting):
+    client, api, post = reporting
+    for field, value in (
+        ("steps", str(10**20)),
+        ("steps", str(MAX_EPISODE_STEPS + 1)),
+        ("steps", "-1"),
+        ("steps", "1e300"),
+        ("episode", str(10**20)),
+        ("episode", str(MAX_EPISODE_NUMBER + 1)),
+    ):
+        _refused(post(**{field: value}), field)
+    assert client.get("/health").json()["status"] == "ok"
+    at_the_limits = post(steps=str(MAX_EPISODE_STEPS), episode=str(MAX_EPISODE_NUMBER))
+    assert at_the_limits.status_code == 200, at_the_limits.text
+    assert api.admin("overview")["totals"]["episodes"] == 1
+
+
+def test_non_finite_or_absurd_durations_are_refused_and_statistics_stay_numbers(reporting):
+    client, api, post = reporting
+    for value in ("Infinity", "-Infinity", "NaN", "1e400", "-0.5", str(MAX_EPISODE_DURATION_S + 1)):
+        _refused(post(duration_s=value), "duration_s")
+    deep = '{"x": ' + "[" * 20 + "]" * 20 + "}"
+    for telemetry in ('{"fps": NaN}', '{"rtt": [1.0, {"ms": Infinity}]}', deep):
+        _refused(post(telemetry=telemetry), "telemetry")
+    for duration in ("3.0", "4.0"):
+        assert post(duration_s=duration).status_code == 200
+    overview = client.get("/api/admin/overview", headers=api.auth(ADMIN))
+    assert "NaN" not in overview.text and "Infinity" not in overview.text
+    (summary,) = overview.json()["completion_time_per_worker"]
+    figures = [summary[k] for k in ("mean_s", "median_s", "min_s", "max_s")]
+    assert figures == [3.5, 3.5, 3.0, 4.0]
+    assert all(isinstance(x, float) and math.isfinite(x) for x in figures)
+    assert summary["successes"] == summary["episodes"] == 2
