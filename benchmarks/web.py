@@ -49,8 +49,8 @@ async def _one_run(playwright, url: str, index: int) -> float:
         await page.check("#consent")
         clicked_ms = time.time() * 1000
         await page.click("#agree")
-        await page.wait_for_function(
-            "window.crowdteleop && window.crowdteleop.connection"
+        await page.wait_for_function(  # a function, not a bare expression: the CSP forbids eval
+            "() => window.crowdteleop && window.crowdteleop.connection"
             " && window.crowdteleop.connection.firstFrameAt",
             timeout=180_000,
         )
