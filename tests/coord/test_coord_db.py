@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import sqlite3
 import time
 
 import pytest
@@ -11,7 +12,7 @@ from alembic.migration import MigrationContext
 from sqlalchemy import create_engine, inspect
 
 from crowdteleop.coord.campaign import CampaignConfig
-from crowdteleop.coord.db import make_engine, migrate, sync_url
+from crowdteleop.coord.db import make_engine, migrate, migrate_sync, sync_url
 from crowdteleop.coord.store import Store
 from crowdteleop.coord.tables import Base, Episode, Session
 
@@ -40,8 +41,6 @@ def _session(worker_id: str, sid: str, created_at: float, state: str = "queued")
         demos_done=0,
         created_at=created_at,
         last_heartbeat_at=created_at,
-        teleop_token="t" * 20,
-        teleop_admin_token="a" * 20,
         report_token_hash="h",
     )
 
@@ -75,6 +74,39 @@ def test_migrations_reach_the_models_and_run_twice(database_url):
         engine.dispose()
     assert diff == [], "tables.py changed without an Alembic revision"
     assert {"workers", "sessions", "episodes", "events", "pairing_codes"} <= tables
+
+
+def test_the_migration_to_derived_tokens_leaves_no_token_in_the_sqlite_file(tmp_path):
+    database = tmp_path / "coord.sqlite3"
+    url = f"sqlite:///{database}"
+    migrate_sync(url, "0001")
+    # Sessions as 0001 stored them, their teleop tokens in clear, over several pages.
+    tokens = [f"{kind}{n:042d}" for n in range(300) for kind in "TA"]
+    db = sqlite3.connect(database)
+    try:
+        db.execute("PRAGMA journal_mode=WAL")
+        columns = [row[1] for row in db.execute("PRAGMA table_info(sessions)")]
+        insert = (
+            f"INSERT INTO sessions ({', '.join(columns)}) VALUES ({', '.join('?' * len(columns))})"
+        )
+        for n in range(300):
+            row = {c: "x" for c in columns} | {
+                "id": f"s_{n}",
+                "teleop_token": tokens[2 * n],
+                "teleop_admin_token": tokens[2 * n + 1],
+            }
+            db.execute(insert, list(row.values()))
+        db.commit()
+    finally:
+        db.close()
+    assert tokens[0].encode() in database.read_bytes()
+    migrate_sync(url)
+    stored = b"".join(p.read_bytes() for p in tmp_path.iterdir() if p.name.startswith("coord"))
+    assert [t for t in tokens if t.encode() in stored] == []
+    with sqlite3.connect(database) as db:
+        columns = [row[1] for row in db.execute("PRAGMA table_info(sessions)")]
+        assert db.execute("SELECT count(*) FROM sessions").fetchone() == (300,), "sessions kept"
+    assert "teleop_token" not in columns and "teleop_admin_token" not in columns
 
 
 def test_rejoining_with_the_same_external_id_is_the_same_worker(database_url):

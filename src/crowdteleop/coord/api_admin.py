@@ -111,8 +111,11 @@ async def teleop_access(session_id: SessionId, coordinator: CoordinatorDep) -> T
         raise ApiError(404, "not_found", "no such session")
     if session.state != "ready" or not session.teleop_url:
         raise ApiError(409, "not_ready", f"the session is {session.state}, not ready")
+    keys = coordinator.keys
     return TeleopAccess(
-        url=session.teleop_url, token=session.teleop_token, admin_token=session.teleop_admin_token
+        url=session.teleop_url,
+        token=keys.teleop_token(session.id),
+        admin_token=keys.teleop_admin_token(session.id),
     )
 
 

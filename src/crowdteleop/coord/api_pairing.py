@@ -88,4 +88,5 @@ async def phone_session(session: PhoneSession, coordinator: CoordinatorDep) -> P
 @router.post("/phone/offer", response_model=OfferAnswer)
 async def phone_offer(body: OfferBody, session: PhoneSession, request: Request) -> OfferAnswer:
     """WebRTC offer from the paired phone (role phone: data channels only, no video)."""
-    return await forward_offer(request.app.state.http, session, body, "phone")
+    token = request.app.state.coordinator.keys.teleop_token(session.id)
+    return await forward_offer(request.app.state.http, session, token, body, "phone")

@@ -132,4 +132,5 @@ async def _end(coordinator: CoordinatorDep, session_id: str, worker: WorkerDep) 
 @router.post("/sessions/{session_id}/offer", response_model=OfferAnswer)
 async def offer(body: OfferBody, session: OwnedSession, request: Request) -> OfferAnswer:
     """WebRTC offer for the session's teleop server (role worker); 409 until it is ready."""
-    return await forward_offer(request.app.state.http, session, body, "worker")
+    token = request.app.state.coordinator.keys.teleop_token(session.id)
+    return await forward_offer(request.app.state.http, session, token, body, "worker")

@@ -17,9 +17,11 @@ from crowdteleop.coord.db import make_engine, migrate
 from crowdteleop.coord.errors import BodyLimitMiddleware, install_error_handlers
 from crowdteleop.coord.headers import SecurityHeadersMiddleware
 from crowdteleop.coord.launcher import Launcher, LocalProcessLauncher
+from crowdteleop.coord.private import prepare_data_dir
 from crowdteleop.coord.reaper import run_reaper
 from crowdteleop.coord.security import FailureLimiter
 from crowdteleop.coord.service import Coordinator
+from crowdteleop.coord.session_keys import SESSION_SECRET_FILE, SessionKeys
 from crowdteleop.coord.store import Store
 from crowdteleop.web import qr
 
@@ -31,12 +33,14 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        prepare_data_dir(config.data_dir)  # 0700, before the database file is made in it
+        keys = SessionKeys.load_or_create(config.data_dir / "state" / SESSION_SECRET_FILE)
         await migrate(config.database_url)
         store = Store(make_engine(config.database_url))
         chosen = launcher or LocalProcessLauncher(
             config.data_dir / "sessions", start_timeout_s=config.teleop_start_timeout_s
         )
-        coordinator = Coordinator(config, store, chosen)
+        coordinator = Coordinator(config, store, chosen, keys)
         await coordinator.start()
         app.state.coordinator = coordinator
         app.state.pair_limiter = FailureLimiter(config.pair_failures_per_minute, 60.0)

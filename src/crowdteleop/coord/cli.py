@@ -115,6 +115,7 @@ def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFil
     """The config, the bound listening sockets (public, then internal if any), TLS files."""
     from crowdteleop.coord.campaign import load_campaigns
     from crowdteleop.coord.config import CoordConfig
+    from crowdteleop.coord.private import private_dir
     from crowdteleop.coord.tls import local_names, self_signed
 
     family = socket.AF_INET6 if ":" in o.host else socket.AF_INET
@@ -137,6 +138,7 @@ def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFil
             tls = (o.cert, o.key)
         elif o.cert is None and o.key is None:
             names = set(local_names()) | ({o.host} if o.host not in WILDCARD else set())
+            private_dir(o.data_dir)  # before its tls/ folder, which would give it usual modes
             tls = self_signed(o.data_dir / "tls", sorted(names))
         else:
             raise ValueError("--cert and --key go together")

@@ -19,6 +19,8 @@ from sqlalchemy.ext.asyncio import (
 )
 from sqlalchemy.pool import ConnectionPoolEntry
 
+from crowdteleop.coord.private import private_sqlite
+
 MIGRATIONS = Path(__file__).parent / "migrations"
 
 
@@ -45,8 +47,9 @@ def async_url(url: str) -> URL:
 
 
 def _ensure_sqlite_dir(url: URL) -> None:
+    """A SQLite file is made 0600 (a new folder for it 0700) before SQLite opens it."""
     if url.get_backend_name() == "sqlite" and url.database and url.database != ":memory:":
-        Path(url.database).parent.mkdir(parents=True, exist_ok=True)
+        private_sqlite(Path(url.database))
 
 
 def _sqlite_pragmas(dbapi_connection: DBAPIConnection, _record: ConnectionPoolEntry) -> None:
@@ -68,6 +71,11 @@ def migrate_sync(url: str, revision: str = "head") -> None:
             config.set_main_option("script_location", str(MIGRATIONS))
             config.attributes["connection"] = connection
             command.upgrade(config, revision)
+        if target.get_backend_name() == "sqlite":
+            with engine.connect() as connection:
+                # Empty the write-ahead log into the file, and the log itself: what a
+                # migration blanked (0002's tokens) must not stay readable in old WAL frames.
+                connection.exec_driver_sql("PRAGMA wal_checkpoint(TRUNCATE)")
     finally:
         engine.dispose()
 

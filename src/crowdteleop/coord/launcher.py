@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
+from crowdteleop.coord.private import open_private_log, private_dir, write_private
 from crowdteleop.teleop.config import TeleopConfig
 
 log = logging.getLogger(__name__)
@@ -93,21 +94,21 @@ class LocalProcessLauncher:
         self.python = python
 
     async def start(self, config: TeleopConfig) -> LocalHandle:
-        folder = self.work_dir / config.session_id
-        folder.mkdir(parents=True, exist_ok=True)
-        config_path = folder / "teleop.json"
-        config_path.write_text(config.model_dump_json(indent=2))
-        config_path.chmod(0o600)  # it holds the session's tokens
+        folder = private_dir(self.work_dir / config.session_id)
+        config_path = write_private(folder / "teleop.json", config.model_dump_json(indent=2))
         log_path = folder / "teleop.log"
-        with log_path.open("ab") as log_file:
+        log_fd = open_private_log(log_path)
+        try:
             process = await asyncio.create_subprocess_exec(
                 *teleop_server_argv(config_path, self.python),
                 stdin=asyncio.subprocess.DEVNULL,
                 stdout=asyncio.subprocess.PIPE,
-                stderr=log_file,
+                stderr=log_fd,
                 preexec_fn=_die_with_parent if sys.platform == "linux" else None,
                 env={**os.environ, "PYTHONUNBUFFERED": "1"},
             )
+        finally:
+            os.close(log_fd)
         handle = LocalHandle("", process, log_path)
         try:
             handle.url = await asyncio.wait_for(self._ready(process), self.start_timeout_s)

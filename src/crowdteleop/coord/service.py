@@ -20,6 +20,7 @@ from crowdteleop.coord.pool import TeleopPool
 from crowdteleop.coord.queue import expected_remaining_s, mean_session_s, queue_etas
 from crowdteleop.coord.schemas import EpisodeAck, SessionView
 from crowdteleop.coord.security import new_completion_code, new_id, new_token, token_hash
+from crowdteleop.coord.session_keys import SessionKeys
 from crowdteleop.coord.spares import SpareKey, SparePool
 from crowdteleop.coord.store import Store
 from crowdteleop.coord.tables import Episode, Session, Worker
@@ -58,9 +59,12 @@ def _assignment(config: TeleopConfig) -> Assignment:
 
 
 class Coordinator:
-    def __init__(self, config: CoordConfig, store: Store, launcher: Launcher) -> None:
+    def __init__(
+        self, config: CoordConfig, store: Store, launcher: Launcher, keys: SessionKeys
+    ) -> None:
         self.config = config
         self.store = store
+        self.keys = keys
         self.pool = TeleopPool(launcher, config.capacity)
         self.spares = SparePool(launcher, self._spare_config, config.spare_servers)
         self.lock = asyncio.Lock()
@@ -116,8 +120,6 @@ class Coordinator:
                     demos_done=0,
                     created_at=now,
                     last_heartbeat_at=now,
-                    teleop_token=new_token(),
-                    teleop_admin_token=new_token(),
                     report_token_hash="",
                 )
             )
@@ -184,12 +186,13 @@ class Coordinator:
             {
                 "session_id": session.id,
                 "worker_id": session.worker_id,
-                "token": session.teleop_token,
-                "admin_token": session.teleop_admin_token,
+                "token": self.keys.teleop_token(session.id),
+                "admin_token": self.keys.teleop_admin_token(session.id),
                 "sim": {"task": session.task, "robot": session.robot},
                 "control": {"controller": session.controller},
                 "recording": {"directory": str(directory)},
                 "ice_servers": list(self.config.ice_servers),
+                "allowed_origins": [self.config.public_url],
                 "report_url": f"{self.config.report_base_url}/internal/episodes",
                 "report_token": report_token,
             },
@@ -229,6 +232,7 @@ class Coordinator:
                     "directory": str((self.config.data_dir / "spares" / spare_id).resolve())
                 },
                 "ice_servers": list(self.config.ice_servers),
+                "allowed_origins": [self.config.public_url],
             },
         )
         return TeleopConfig.model_validate(fields)

@@ -69,8 +69,8 @@ class Session(Base):
     completion_code: Mapped[str | None] = mapped_column(String(32))
     interface: Mapped[str | None] = mapped_column(String(16))  # last one the page reported
     teleop_url: Mapped[str | None] = mapped_column(String(256))
-    teleop_token: Mapped[str] = mapped_column(String(128))  # server-side secret, never sent
-    teleop_admin_token: Mapped[str] = mapped_column(String(128))
+    # The teleop server's tokens are not stored: they are derived from the session id and the
+    # coordinator's secret (coord/session_keys.py). The report token is stored hashed.
     report_token_hash: Mapped[str] = mapped_column(String(64), index=True)
     error: Mapped[str | None] = mapped_column(Text)
 

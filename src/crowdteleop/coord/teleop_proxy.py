@@ -18,12 +18,14 @@ OFFER_TIMEOUT_S = 20.0
 
 
 async def forward_offer(
-    http: aiohttp.ClientSession, session: Session, offer: OfferBody, role: PeerRole
+    http: aiohttp.ClientSession, session: Session, token: str, offer: OfferBody, role: PeerRole
 ) -> OfferAnswer:
-    """POST the offer to the session's teleop server; its refusals come back as 4xx."""
+    """POST the offer with the session's teleop `token` (`SessionKeys.teleop_token`) to its
+    teleop server; its refusals come back as 4xx. No `Origin` header: a server-to-server call,
+    which the teleop server's origin check lets through."""
     if session.state != "ready" or not session.teleop_url:
         raise ApiError(409, "not_ready", f"the session is {session.state}, not ready")
-    body = OfferRequest(sdp=offer.sdp, token=session.teleop_token, role=role)
+    body = OfferRequest(sdp=offer.sdp, token=token, role=role)
     try:
         async with http.post(
             f"{session.teleop_url}/offer",

@@ -12,6 +12,8 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 
+from crowdteleop.coord.private import PRIVATE_FILE, private_dir, tighten, write_private
+
 
 def local_names() -> list[str]:
     """Names and addresses this machine answers to (no packet leaves to find them)."""
@@ -38,9 +40,10 @@ def self_signed(directory: Path, names: list[str], days: int = 825) -> tuple[Pat
     """(certificate, key) in `directory`, made on first use and kept; a new one is made when
     it lacks one of `names` or is about to expire."""
     cert_path, key_path = directory / "cert.pem", directory / "key.pem"
+    private_dir(directory)
     if cert_path.is_file() and key_path.is_file() and _still_good(cert_path, names):
+        tighten(key_path, PRIVATE_FILE)
         return cert_path, key_path
-    directory.mkdir(parents=True, exist_ok=True)
     key = ec.generate_private_key(ec.SECP256R1())
     subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "crowdteleop (self-signed)")])
     now = datetime.datetime.now(datetime.UTC)
@@ -56,14 +59,14 @@ def self_signed(directory: Path, names: list[str], days: int = 825) -> tuple[Pat
         .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
         .sign(key, hashes.SHA256())
     )
-    key_path.write_bytes(
+    write_private(  # 0600 from its first byte
+        key_path,
         key.private_bytes(
             serialization.Encoding.PEM,
             serialization.PrivateFormat.PKCS8,
             serialization.NoEncryption(),
-        )
+        ),
     )
-    key_path.chmod(0o600)
     cert_path.write_bytes(certificate.public_bytes(serialization.Encoding.PEM))
     return cert_path, key_path
 

@@ -126,6 +126,11 @@ class TeleopConfig(BaseModel):
         None, description="the coordination server's URL for episode reports (POST JSON)"
     )
     report_token: str | None = Field(None, min_length=8, description="bearer token for reports")
+    allowed_origins: list[str] = Field(
+        default_factory=list,
+        description="browser origins (besides our own) whose requests we take: the "
+        "coordinator's; a request with any other Origin header is refused (teleop/origin.py)",
+    )
     standby: bool = Field(
         False, description="a warm spare: refuses offers until POST /assign gives it a session"
     )

@@ -15,6 +15,7 @@ import threading
 from typing import Any
 
 from aiohttp import web
+from aiohttp.typedefs import Handler
 from pydantic import ValidationError
 
 from crowdteleop.recording.wal_recovery import recover_orphans
@@ -26,6 +27,7 @@ from crowdteleop.teleop.clock import FixedRateClock
 from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.dispatch import Dispatcher
 from crowdteleop.teleop.messages import MAX_OFFER_BYTES, Assignment, OfferAnswer, OfferRequest
+from crowdteleop.teleop.origin import origin_allowed
 from crowdteleop.teleop.peering import PeerSet
 from crowdteleop.teleop.peers import Peer
 from crowdteleop.teleop.protocol import Hello, json_schema
@@ -66,7 +68,9 @@ class TeleopServer:
         self.session: TeleopSession
         self.dispatcher: Dispatcher
         self._loop_task: asyncio.Task[None] | None = None
-        self.app = web.Application(client_max_size=MAX_OFFER_BYTES * 2)
+        self.app = web.Application(
+            client_max_size=MAX_OFFER_BYTES * 2, middlewares=[self._check_origin]
+        )
         self.app.add_routes(
             [
                 web.post("/offer", self.handle_offer),
@@ -106,6 +110,19 @@ class TeleopServer:
     def _http_error(self, status: int, code: str, message: str) -> web.Response:
         self.telemetry.errors[f"http_{code}"] += 1
         return web.json_response({"error": code, "message": message}, status=status)
+
+    @web.middleware
+    async def _check_origin(self, request: web.Request, handler: Handler) -> web.StreamResponse:
+        """A browser request from a foreign page: 403, counted as `http_foreign_origin`."""
+        if not origin_allowed(request, self.config.allowed_origins):
+            origin = request.headers.get("Origin", "")[:200]
+            log.warning("refused %s %s from origin %r", request.method, request.path, origin)
+            return self._http_error(
+                403,
+                "foreign_origin",
+                "this server takes browser requests from its coordinator only",
+            )
+        return await handler(request)
 
     async def handle_offer(self, request: web.Request) -> web.Response:
         try:
