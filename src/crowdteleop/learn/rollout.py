@@ -206,6 +206,13 @@ class PlainRobosuiteEnv:
         self.env = robosuite.make(env_args["env_name"], **kwargs)
         low, high = self.env.action_spec
         self._low, self._high = np.asarray(low), np.asarray(high)
+        if checkpoint.config.actions == "actions_abs":
+            # robosuite reports input_min / input_max (+-1) as the action spec, but its
+            # absolute OSC reads the pose as it is: clipping would cut rotations past 1 rad
+            self._low, self._high = (
+                np.full_like(self._low, -np.inf),
+                np.full_like(self._high, np.inf),
+            )
 
     def reset(self, seed: int) -> Obs:
         from crowdteleop.sim.types import low_dim_keys
