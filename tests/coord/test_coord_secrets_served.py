@@ -12,40 +12,16 @@ from typing import Any
 
 import httpx
 import pytest
-from aiortc import RTCConfiguration, RTCPeerConnection, RTCSessionDescription
 
 from crowdteleop.client.connection import TeleopClient
 from tests.fixtures.coord import ADMIN, Worker, auth, coord_server
+from tests.fixtures.signalling import hello_through
 
 pytestmark = pytest.mark.slow
 
 
 def mode(path: Path) -> int:
     return stat.S_IMODE(path.stat().st_mode)
-
-
-async def hello_through(http: httpx.AsyncClient, path: str, headers: dict[str, str]) -> dict:
-    """A browser-like WebRTC offer signalled through the coordinator; the server's hello."""
-    pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
-    events = pc.createDataChannel("events")
-    hello: asyncio.Future[dict] = asyncio.get_running_loop().create_future()
-
-    @events.on("message")
-    def on_message(raw: str) -> None:
-        message = json.loads(raw)
-        if message.get("type") == "hello" and not hello.done():
-            hello.set_result(message)
-
-    try:
-        await pc.setLocalDescription(await pc.createOffer())
-        body = {"sdp": pc.localDescription.sdp, "type": "offer"}
-        response = await http.post(path, json=body, headers=headers)
-        assert response.status_code == 200, response.text
-        answer = response.json()
-        await pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
-        return await asyncio.wait_for(hello, 30)
-    finally:
-        await pc.close()
 
 
 async def direct_offer(url: str, body: dict[str, Any], origin: str | None) -> httpx.Response:

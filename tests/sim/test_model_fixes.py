@@ -43,15 +43,11 @@ def test_by_default_sawyers_base_turns_and_the_saved_model_says_why():
 def test_robosuites_own_model_is_kept_on_request_base_contact_and_all():
     import robosuite
 
+    from crowdteleop.dataset.robosuite_replay import REPLAY_KWARGS
+
     turned, xml = base_turn_rad(exclude=False)
     assert turned < 0.02  # robosuite's behaviour: the contact's friction holds joint 0
-    plain = robosuite.make(
-        "Lift",
-        robots="Sawyer",
-        has_renderer=False,
-        has_offscreen_renderer=False,
-        use_camera_obs=False,
-    )
+    plain = robosuite.make("Lift", robots="Sawyer", **REPLAY_KWARGS)
     try:
         assert excludes(xml) == excludes(plain.sim.model.get_xml())
     finally:

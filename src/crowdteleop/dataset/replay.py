@@ -119,7 +119,7 @@ def recorded_env_args(demo: Demo) -> dict[str, Any]:
     from crowdteleop.sim import SimConfig
     from crowdteleop.teleop.episode import env_args
 
-    return env_args(SimConfig.from_recorded(recorded_sim_config(demo))).model_dump(mode="json")
+    return env_args(SimConfig(**recorded_sim_config(demo))).model_dump(mode="json")
 
 
 def recorded_sim_config(demo: Demo) -> dict[str, Any]:
