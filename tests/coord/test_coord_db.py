@@ -168,13 +168,13 @@ def test_pairing_codes_are_single_use_and_expire(database_url):
             sid = "s_0000000000000002"
             await store.add_session(_session(worker.id, sid, time.time()))
             now = time.time()
-            assert await store.add_pairing_code(sid, "ABC234", now + 60)
-            clash = await store.add_pairing_code(sid, "ABC234", now + 60)
-            assert await store.add_pairing_code(sid, "OLD234", now - 1)
-            first = await store.redeem_pairing_code("ABC234", now)
-            second = await store.redeem_pairing_code("ABC234", now)
-            expired = await store.redeem_pairing_code("OLD234", now)
-            phone = await store.session_by_phone_token(first[1]) if first else None
+            assert await store.pairing.add_code(sid, "ABC234", now + 60)
+            clash = await store.pairing.add_code(sid, "ABC234", now + 60)
+            assert await store.pairing.add_code(sid, "OLD234", now - 1)
+            first = await store.pairing.redeem("ABC234", now)
+            second = await store.pairing.redeem("ABC234", now)
+            expired = await store.pairing.redeem("OLD234", now)
+            phone = await store.pairing.session_of_phone(first[1]) if first else None
             return clash, first, second, expired, phone
         finally:
             await store.close()

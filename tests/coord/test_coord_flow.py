@@ -62,7 +62,9 @@ def test_capacity_one_queue_leave_reap_signal_and_complete(tmp_path):
                 path = f"/api/sessions/{alice.sid}/pairing"
                 code = (await http.post(path, headers=auth(alice.token))).json()["code"]
                 phone = (await http.post("/api/pair", json={"code": code})).json()
-                hello = await hello_through(http, "/api/phone/offer", auth(phone["phone_token"]))
+                hello = await hello_through(
+                    http, "/api/phone/offer", auth(phone["phone_token"]), video=False
+                )
                 assert (hello["session_id"], hello["role"]) == (alice.sid, "phone")
 
                 # Alice closes the tab: the beacon frees the slot, her process goes, Bob starts.

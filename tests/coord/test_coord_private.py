@@ -13,7 +13,7 @@ import pytest
 
 from crowdteleop.coord.db import migrate_sync
 from crowdteleop.coord.private import write_private
-from tests.fixtures.coord import Api, FakeLauncher, coord_config, in_process_app
+from tests.fixtures.coord import OFFER_SDP, Api, FakeLauncher, coord_config, in_process_app
 
 pytestmark = pytest.mark.filterwarnings("ignore:Using `httpx`")
 
@@ -72,7 +72,7 @@ def test_no_token_is_in_the_database_file_in_plain_text(tmp_path):
         offer = client.post(
             f"/api/sessions/{sid}/offer",
             headers=api.auth(worker["worker_token"]),
-            json={"sdp": "v=0 offer", "type": "offer"},
+            json={"sdp": OFFER_SDP, "type": "offer"},
         )
         stored = database_bytes(database)
     assert offer.status_code == 200, "the coordinator still presents the session's token"

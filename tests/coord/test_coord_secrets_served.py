@@ -53,7 +53,8 @@ def test_a_served_session_keeps_its_secrets_private_and_its_server_refuses_forei
                     "admin_token": access["admin_token"],
                 }
                 foreign = await direct_offer(url, admin_offer, "https://evil.example")
-                # The coordinator's own origin gets through (aiortc answers even a bare "v=0").
+                # The coordinator's own origin passes the origin check; a bare "v=0" is then
+                # refused for what it lacks (no data channel section), not for its origin.
                 coordinator = await direct_offer(url, admin_offer, server.url)
                 bot = TeleopClient(
                     url, access["token"], role="admin", admin_token=access["admin_token"]
@@ -101,7 +102,8 @@ def test_a_served_session_keeps_its_secrets_private_and_its_server_refuses_forei
     assert outcome["proxied"]["role"] == "worker", "the coordinator's path works"
     assert outcome["bot_hello"] is not None and outcome["bot_hello"].role == "admin"
     assert outcome["foreign"][0] == 403 and outcome["foreign"][1]["error"] == "foreign_origin"
-    assert outcome["coordinator"][0] == 200, outcome["coordinator"]
+    assert outcome["coordinator"][0] == 400, outcome["coordinator"]
+    assert outcome["coordinator"][1]["error"] == "incomplete_offer", outcome["coordinator"]
     assert outcome["telemetry"]["errors"].get("http_foreign_origin") == 1
 
     access = outcome["access"]

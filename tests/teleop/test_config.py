@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import pytest
 
-from crowdteleop.teleop.config import TeleopConfig, VideoConfig
+from crowdteleop.teleop.config import LimitsConfig, TeleopConfig, VideoConfig
 
 
 def test_configs_refuse_what_aiortc_would_clamp_or_the_sim_could_not_run():
     with pytest.raises(ValueError, match="bitrates"):
         VideoConfig(codec="h264", min_bitrate_bps=250_000)
+    with pytest.raises(ValueError, match="connect_timeout_s"):
+        LimitsConfig(connect_timeout_s=0)
     with pytest.raises(ValueError, match="action mode"):
         TeleopConfig.model_validate(
             {"control": {"controller": "osc"}, "sim": {"action_mode": "joint-velocity"}}

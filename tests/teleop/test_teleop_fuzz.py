@@ -216,7 +216,7 @@ def test_exact_counts_per_kind_of_bad_message(tmp_path):
     with teleop_server(tmp_path) as server:
 
         async def scenario():
-            client = TeleopClient(server.url, TOKEN, video=False)
+            client = TeleopClient(server.url, TOKEN)
             await client.connect()
             for raw in bad.values():
                 for _ in range(20):

@@ -104,7 +104,7 @@ def test_one_device_drives_at_a_time_and_switching_is_explicit(tmp_path):
     with teleop_server(tmp_path) as server:
 
         async def scenario():
-            browser = TeleopClient(server.url, TOKEN, device="keyboard", video=False)
+            browser = TeleopClient(server.url, TOKEN, device="keyboard")
             phone = TeleopClient(server.url, TOKEN, role="phone", device="phone")
             await browser.connect()
             await phone.connect()

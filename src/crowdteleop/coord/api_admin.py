@@ -22,7 +22,7 @@ from crowdteleop.coord.stats import completion_times, per_hour
 from crowdteleop.coord.tables import Session
 
 ERRORS: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorBody} for code in (401, 404, 409, 422)
+    code: {"model": ErrorBody} for code in (401, 404, 409, 422, 429)
 }
 router = APIRouter(
     prefix="/api/admin", tags=["admin"], dependencies=[Depends(require_admin)], responses=ERRORS
@@ -80,6 +80,8 @@ async def overview(coordinator: CoordinatorDep) -> AdminOverview:
         completion_time_per_worker=completion_times(episodes, lambda e: e.worker_id),
         completion_time_per_interface=completion_times(episodes, lambda e: e.interface),
         totals=await store.totals(),
+        refusals=coordinator.metrics.refusal_counts(),
+        restarts=int(sum(coordinator.metrics.restarts_by_cause().values())),
     )
 
 

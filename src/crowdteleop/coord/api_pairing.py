@@ -7,7 +7,7 @@ from typing import Any
 
 from fastapi import APIRouter, Request
 
-from crowdteleop.coord.deps import CoordinatorDep, OwnedSession, PhoneSession
+from crowdteleop.coord.deps import ClientDep, CoordinatorDep, GuardsDep, OwnedSession, PhoneSession
 from crowdteleop.coord.errors import ApiError
 from crowdteleop.coord.schemas import (
     ErrorBody,
@@ -17,7 +17,7 @@ from crowdteleop.coord.schemas import (
     PairResponse,
     PhoneSessionView,
 )
-from crowdteleop.coord.security import new_pairing_code, normalize_pairing_code
+from crowdteleop.coord.security import new_pairing_code, new_token, normalize_pairing_code
 from crowdteleop.coord.teleop_proxy import forward_offer
 from crowdteleop.tasks import get_task
 from crowdteleop.teleop.messages import OfferAnswer
@@ -35,35 +35,32 @@ async def new_pairing(session: OwnedSession, coordinator: CoordinatorDep) -> Pai
     if session.state == "ended":
         raise ApiError(409, "ended", "the session has ended")
     ttl = coordinator.config.pairing_ttl_s
+    key = new_token()  # the QR link's: typing it is not expected, guessing it is hopeless
     for _ in range(20):
         code = new_pairing_code()
-        if await coordinator.store.add_pairing_code(session.id, code, time.time() + ttl):
+        if await coordinator.store.pairing.add_code(session.id, code, time.time() + ttl, key):
             break
     else:
         raise ApiError(409, "busy", "could not draw a free code; try again")
     base = coordinator.config.public_url.rstrip("/")
-    return PairingView(code=code, expires_s=ttl, phone_url=f"{base}/phone?code={code}")
+    return PairingView(code=code, expires_s=ttl, phone_url=f"{base}/phone?code={code}&key={key}")
 
 
 @router.post("/pair", response_model=PairResponse)
-async def pair(body: PairRequest, request: Request, coordinator: CoordinatorDep) -> PairResponse:
-    """Trade a code for a phone token. Wrong, expired or used codes: 404; too many wrong
-    guesses from one address: 429."""
-    limiter = request.app.state.pair_limiter
-    client = request.client.host if request.client else "unknown"
-    wait = limiter.blocked(client)
-    if wait > 0:
-        raise ApiError(
-            429,
-            "rate_limited",
-            f"too many wrong codes; try again in {wait:.0f} s",
-            headers={"Retry-After": str(max(1, round(wait)))},
-        )
-    redeemed = await coordinator.store.redeem_pairing_code(
-        normalize_pairing_code(body.code), time.time()
-    )
+async def pair(
+    body: PairRequest, coordinator: CoordinatorDep, guards: GuardsDep, client: ClientDep
+) -> PairResponse:
+    """Trade a code for a phone token. Wrong, expired or used codes: 404. A typed code is
+    refused (429) after too many wrong ones from the client's address or from everyone; the
+    QR link's code with its long key never is."""
+    code = normalize_pairing_code(body.code)
+    if body.key:
+        redeemed = await coordinator.store.pairing.redeem(code, time.time(), key=body.key)
+    else:
+        guards.check_pairing(client)
+        redeemed = await coordinator.store.pairing.redeem(code, time.time())
     if redeemed is None:
-        limiter.failed(client)
+        guards.pairing_failed(client)
         raise ApiError(404, "bad_code", "that code is wrong, expired or already used")
     session_id, token = redeemed
     session = await coordinator.store.session(session_id)

@@ -8,7 +8,9 @@ from fastapi import APIRouter, Body, Query, Request
 
 from crowdteleop.coord.campaign import CampaignConfig
 from crowdteleop.coord.deps import (
+    ClientDep,
     CoordinatorDep,
+    GuardsDep,
     OwnedSession,
     SessionId,
     WorkerDep,
@@ -28,11 +30,12 @@ from crowdteleop.coord.schemas import (
     OfferBody,
     SessionView,
 )
+from crowdteleop.coord.store import SessionInUseError
 from crowdteleop.coord.teleop_proxy import forward_offer
 from crowdteleop.teleop.messages import OfferAnswer
 
 ERRORS: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorBody} for code in (401, 404, 409, 422)
+    code: {"model": ErrorBody} for code in (401, 403, 404, 409, 422, 429, 503)
 }
 router = APIRouter(prefix="/api", tags=["workers"], responses=ERRORS)
 
@@ -50,20 +53,47 @@ def campaign_view(campaign: CampaignConfig) -> CampaignView:
 
 
 @router.post("/join", response_model=JoinResponse)
-async def join(body: JoinRequest, coordinator: CoordinatorDep) -> JoinResponse:
-    """Register (or recognise) the worker a join link names; returns their bearer token."""
+async def join(
+    body: JoinRequest, coordinator: CoordinatorDep, guards: GuardsDep, client: ClientDep
+) -> JoinResponse:
+    """Register (or recognise) the worker a join link names; returns their bearer token.
+
+    Joins are rate limited per address and in total (429). A campaign may refuse links
+    without study ids (403). A study id whose session is open in another browser is refused
+    (409 `in_use`) unless this browser presents its earlier token or asks to take over."""
     campaign = coordinator.config.campaign(body.campaign)
     if campaign is None:
         raise ApiError(404, "unknown_campaign", f"no campaign named {body.campaign!r}")
     who = identify(body.params)
-    worker, token, _created = await coordinator.store.join(
-        campaign.name,
-        who.source,
-        who.external_id,
-        who.study_id,
-        who.external_session,
-        body.params,
-    )
+    if who.source == "anonymous" and not campaign.allow_anonymous:
+        guards.metrics.refused("anonymous")
+        raise ApiError(
+            403,
+            "study_link_required",
+            "this study is open to its participants only: please use the link your study "
+            "platform (Prolific or MTurk) gave you",
+        )
+    guards.admit_join(client)
+    try:
+        worker, token, _created = await coordinator.store.join(
+            campaign.name,
+            who.source,
+            who.external_id,
+            who.study_id,
+            who.external_session,
+            body.params,
+            presented_token=body.worker_token,
+            take_over=body.take_over,
+        )
+    except SessionInUseError as exc:
+        guards.metrics.refused("in_use")
+        raise ApiError(
+            409,
+            "in_use",
+            "your session is open in another browser or tab. Continue there, or take it over "
+            "here (the other one will stop).",
+        ) from exc
+    guards.metrics.joins.labels(source=who.source).inc()
     return JoinResponse(
         worker_id=worker.id,
         worker_token=token,
@@ -73,10 +103,15 @@ async def join(body: JoinRequest, coordinator: CoordinatorDep) -> JoinResponse:
 
 
 @router.post("/sessions", response_model=SessionView)
-async def create_session(worker: WorkerDep, coordinator: CoordinatorDep) -> SessionView:
-    """The worker's live session, or a new one: ready soon, or queued when the pool is full."""
+async def create_session(
+    worker: WorkerDep, coordinator: CoordinatorDep, client: ClientDep
+) -> SessionView:
+    """The worker's live session, or a new one: ready soon, or queued when the pool is full.
+    A new one is refused when its network has too many open (429), the queue is full or the
+    wait too long (503, with Retry-After)."""
     campaign = coordinator.config.campaign(worker.campaign) or coordinator.config.default_campaign
-    session = await coordinator.create_session(worker, campaign)
+    tag = coordinator.keys.client_tag(client)
+    session = await coordinator.create_session(worker, campaign, tag)
     return await coordinator.view(session, worker)
 
 

@@ -9,17 +9,22 @@ from collections.abc import AsyncIterator
 from typing import Any
 
 import aiohttp
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
+from fastapi.responses import Response
 
 from crowdteleop.coord import api_admin, api_internal, api_pairing, api_sessions, pages
 from crowdteleop.coord.config import CoordConfig
 from crowdteleop.coord.db import make_engine, migrate
+from crowdteleop.coord.deps import require_admin
 from crowdteleop.coord.errors import BodyLimitMiddleware, install_error_handlers
+from crowdteleop.coord.guards import Guards
 from crowdteleop.coord.headers import SecurityHeadersMiddleware
+from crowdteleop.coord.http_limits import BodyTimeoutMiddleware
 from crowdteleop.coord.launcher import Launcher, LocalProcessLauncher
+from crowdteleop.coord.liveness import run_liveness
+from crowdteleop.coord.metrics import CoordMetrics
 from crowdteleop.coord.private import prepare_data_dir
 from crowdteleop.coord.reaper import run_reaper
-from crowdteleop.coord.security import FailureLimiter
 from crowdteleop.coord.service import Coordinator
 from crowdteleop.coord.session_keys import SESSION_SECRET_FILE, SessionKeys
 from crowdteleop.coord.store import Store
@@ -40,18 +45,23 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         chosen = launcher or LocalProcessLauncher(
             config.data_dir / "sessions", start_timeout_s=config.teleop_start_timeout_s
         )
-        coordinator = Coordinator(config, store, chosen, keys)
+        metrics = CoordMetrics()
+        coordinator = Coordinator(config, store, chosen, keys, metrics)
         await coordinator.start()
         app.state.coordinator = coordinator
-        app.state.pair_limiter = FailureLimiter(config.pair_failures_per_minute, 60.0)
+        app.state.guards = Guards.of(config, metrics)
         app.state.http = aiohttp.ClientSession()
-        reaper = asyncio.create_task(run_reaper(coordinator), name="reaper")
+        watchers = [
+            asyncio.create_task(run_reaper(coordinator), name="reaper"),
+            asyncio.create_task(run_liveness(coordinator), name="liveness"),
+        ]
         try:
             yield
         finally:
-            reaper.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await reaper
+            for watcher in watchers:
+                watcher.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await watcher
             await coordinator.close()
             await app.state.http.close()
             await store.close()
@@ -67,6 +77,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         redoc_url="/redoc" if config.api_docs else None,
     )
     app.add_middleware(BodyLimitMiddleware, max_bytes=config.max_body_bytes)
+    app.add_middleware(BodyTimeoutMiddleware, timeout_s=config.body_timeout_s)  # bounds its read
     # Outermost, so even the body limit's 413 carries the headers.
     docs_pages = ("/docs", "/docs/oauth2-redirect", "/redoc") if config.api_docs else ()
     app.add_middleware(SecurityHeadersMiddleware, docs_paths=docs_pages)
@@ -90,6 +101,18 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
             "busy": len(coordinator.pool.slots),
             "spares": spares,
         }
+
+    @app.get("/metrics", tags=["server"], dependencies=[Depends(require_admin)])
+    async def metrics(request: Request) -> Response:
+        """Prometheus's text format (admin token: `bearer_token` in the scrape config)."""
+        coordinator: Coordinator = request.app.state.coordinator
+        metrics = coordinator.metrics
+        live = await coordinator.store.live_sessions()
+        for state in ("queued", "starting", "ready"):
+            metrics.sessions.labels(state=state).set(sum(s.state == state for s in live))
+        metrics.capacity.set(config.capacity)
+        metrics.spares.set(sum(len(ready) for ready in coordinator.spares.ready.values()))
+        return Response(metrics.exposition(), media_type="text/plain; version=0.0.4")
 
     return app
 

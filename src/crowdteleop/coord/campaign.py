@@ -42,6 +42,10 @@ class CampaignConfig(BaseModel):
     capacity: int | None = Field(
         None, ge=1, description="unused here: the server-wide capacity applies (CoordConfig)"
     )
+    allow_anonymous: bool = Field(
+        True,
+        description="take join links without Prolific or MTurk ids; false: refuse them (403)",
+    )
     prolific_completion_code: str | None = Field(
         None,
         pattern=r"^[A-Za-z0-9]{4,32}$",

@@ -175,16 +175,20 @@ async def _run(
     import uvicorn
 
     from crowdteleop.coord.app import create_app
+    from crowdteleop.coord.http_limits import uvicorn_options
 
     app = create_app(settings)
     certificate, key = (str(tls[0]), str(tls[1])) if tls else (None, None)
+    limits = uvicorn_options(settings)
     main = uvicorn.Server(
-        uvicorn.Config(app, log_level="warning", ssl_certfile=certificate, ssl_keyfile=key)
+        uvicorn.Config(
+            app, log_level="warning", ssl_certfile=certificate, ssl_keyfile=key, **limits
+        )
     )
     servers = [main.serve(sockets=[sockets[0]])]
     side = None
     if len(sockets) > 1:
-        side = _QuietServer(uvicorn.Config(app, lifespan="off", log_level="warning"))
+        side = _QuietServer(uvicorn.Config(app, lifespan="off", log_level="warning", **limits))
         servers.append(side.serve(sockets=[sockets[1]]))
 
     async def announce() -> None:

@@ -5,9 +5,35 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from crowdteleop.coord.campaign import CampaignConfig, read_structured
+from crowdteleop.coord.clients import ProxyTrust
+from crowdteleop.coord.security import ADMIN_TOKEN_MIN_BITS, estimated_entropy_bits
+
+
+class AdmissionConfig(BaseModel):
+    """Who may join and queue, and how many: a join link is public (docs/security.md)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    joins_per_minute_per_address: int = Field(
+        30,
+        ge=1,
+        description="joins from one address (/64 for IPv6) in any minute: a lab's NAT joins a "
+        "class at once, a script joins hundreds",
+    )
+    joins_per_minute: int = Field(600, ge=1, description="joins from everyone in any minute")
+    max_queue: int = Field(100, ge=0, description="queued sessions at most; more are refused")
+    max_wait_s: float = Field(
+        3600.0,
+        gt=0,
+        description="a new session whose estimated wait is longer is refused, and a queued one "
+        "that has waited this long ends (reason queue_timeout)",
+    )
+    live_sessions_per_address: int = Field(
+        8, ge=1, description="queued, starting or ready sessions from one address"
+    )
 
 
 class CoordConfig(BaseModel):
@@ -38,8 +64,41 @@ class CoordConfig(BaseModel):
     reaper_interval_s: float = Field(1.0, gt=0)
     teleop_start_timeout_s: float = Field(120.0, gt=0)
     pairing_ttl_s: float = Field(120.0, gt=0)
-    pair_failures_per_minute: int = Field(10, ge=1, description="wrong codes per client IP")
+    pair_failures_per_minute: int = Field(
+        10, ge=1, description="wrong pairing codes per client address (/64 for IPv6)"
+    )
+    pair_failures_per_minute_total: int = Field(
+        300,
+        ge=1,
+        description="wrong pairing codes from everyone together (the code space's budget)",
+    )
+    admin_failures_per_minute: int = Field(
+        10, ge=1, description="wrong admin tokens per client address before 429"
+    )
+    admission: AdmissionConfig = Field(default_factory=lambda: AdmissionConfig())
+    trusted_proxies: list[str] = Field(
+        default_factory=list,
+        description="addresses or networks (CIDR) of reverse proxies whose X-Forwarded-For is "
+        "believed; none by default, so a client cannot choose the address it is counted under",
+    )
+    health_interval_s: float = Field(1.0, gt=0, description="how often each server is probed")
+    health_timeout_s: float = Field(2.0, gt=0, description="one probe's answer must come by then")
+    unresponsive_after_s: float = Field(
+        6.0, gt=0, description="a server with no good probe for this long is ended as hung"
+    )
+    max_restarts: int = Field(
+        2, ge=0, le=10, description="new servers a session gets after its server crashed or hung"
+    )
     max_body_bytes: int = Field(256 * 1024, ge=1024)
+    body_timeout_s: float = Field(
+        10.0, gt=0, description="a request body must arrive whole within this (408 after)"
+    )
+    header_timeout_s: float = Field(
+        10.0, gt=0, description="a new connection must send its request's headers within this"
+    )
+    max_connections: int = Field(
+        1000, ge=1, description="connections served at once; more get 503 (uvicorn's limit)"
+    )
     api_docs: bool = Field(
         False,
         description="serve the API's schema and docs (/openapi.json, /docs, /redoc): a map of "
@@ -49,6 +108,24 @@ class CoordConfig(BaseModel):
         default_factory=dict,
         description="TeleopConfig fields every session gets (video, limits, ...)",
     )
+
+    @field_validator("admin_token")
+    @classmethod
+    def _strong_admin_token(cls, token: str) -> str:
+        bits = estimated_entropy_bits(token)
+        if bits < ADMIN_TOKEN_MIN_BITS:
+            raise ValueError(
+                f"the admin token looks too weak (~{bits:.0f} bits; at least "
+                f"{ADMIN_TOKEN_MIN_BITS} needed): leave it out to get a random one, or use "
+                "e.g. `python -c 'import secrets; print(secrets.token_urlsafe(32))'`"
+            )
+        return token
+
+    @field_validator("trusted_proxies")
+    @classmethod
+    def _networks(cls, entries: list[str]) -> list[str]:
+        ProxyTrust.of(entries)  # raises ValueError on a malformed entry
+        return entries
 
     @model_validator(mode="after")
     def _unique_campaigns(self) -> CoordConfig:

@@ -8,6 +8,7 @@ from fastapi import Depends, Path, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from crowdteleop.coord.errors import ApiError
+from crowdteleop.coord.guards import Guards
 from crowdteleop.coord.security import same
 from crowdteleop.coord.service import Coordinator
 from crowdteleop.coord.tables import Session, Worker
@@ -25,6 +26,22 @@ def get_coordinator(request: Request) -> Coordinator:
 CoordinatorDep = Annotated[Coordinator, Depends(get_coordinator)]
 
 
+def get_guards(request: Request) -> Guards:
+    guards: Guards = request.app.state.guards  # set by create_app
+    return guards
+
+
+GuardsDep = Annotated[Guards, Depends(get_guards)]
+
+
+def get_client(request: Request, guards: GuardsDep) -> str:
+    """The client address key this request is counted under (coord/clients.py)."""
+    return guards.client(request)
+
+
+ClientDep = Annotated[str, Depends(get_client)]
+
+
 def token_of(credentials: HTTPAuthorizationCredentials | None) -> str | None:
     if credentials is None or not credentials.credentials or len(credentials.credentials) > 512:
         return None
@@ -32,7 +49,14 @@ def token_of(credentials: HTTPAuthorizationCredentials | None) -> str | None:
 
 
 async def worker_for(coordinator: Coordinator, token: str | None) -> Worker:
-    worker = await coordinator.store.worker_by_token(token) if token else None
+    worker, revoked = await coordinator.store.token_holder(token) if token else (None, False)
+    if revoked:
+        raise ApiError(
+            401,
+            "taken_over",
+            "your session was taken over in another browser; open the study link again to "
+            "take it back",
+        )
     if worker is None:
         raise ApiError(401, "unauthorized", "a valid worker token is required (from /api/join)")
     return worker
@@ -62,15 +86,20 @@ async def owned_session(
 OwnedSession = Annotated[Session, Depends(owned_session)]
 
 
-async def require_admin(coordinator: CoordinatorDep, credentials: Credentials) -> None:
+async def require_admin(
+    coordinator: CoordinatorDep, credentials: Credentials, guards: GuardsDep, client: ClientDep
+) -> None:
+    """The admin token, with wrong guesses limited per address (429 past the limit)."""
+    guards.check_admin(client)
     token = token_of(credentials)
     if token is None or not same(token, coordinator.config.admin_token):
+        guards.admin_failed(client)
         raise ApiError(401, "unauthorized", "the admin token is required")
 
 
 async def phone_session(coordinator: CoordinatorDep, credentials: Credentials) -> Session:
     token = token_of(credentials)
-    session = await coordinator.store.session_by_phone_token(token) if token else None
+    session = await coordinator.store.pairing.session_of_phone(token) if token else None
     if session is None:
         raise ApiError(401, "unauthorized", "a valid phone token is required (from /api/pair)")
     return session

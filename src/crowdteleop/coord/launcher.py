@@ -53,8 +53,9 @@ class Launcher(Protocol):
         """Start a server for `config` and return once it accepts offers."""
         ...
 
-    async def stop(self, handle: TeleopHandle) -> None:
-        """Stop it and wait until it is gone (idempotent)."""
+    async def stop(self, handle: TeleopHandle, grace_s: float | None = None) -> None:
+        """Stop it and wait until it is gone (idempotent): asked to finish its recordings
+        first, for `grace_s` (None: the launcher's default; 0: killed at once)."""
         ...
 
     def alive(self, handle: TeleopHandle) -> bool: ...
@@ -141,14 +142,17 @@ class LocalProcessLauncher:
         while await process.stdout.read(65536):
             pass
 
-    async def stop(self, handle: TeleopHandle) -> None:
+    async def stop(self, handle: TeleopHandle, grace_s: float | None = None) -> None:
         assert isinstance(handle, LocalHandle)
         process = handle.process
+        grace_s = self.stop_timeout_s if grace_s is None else grace_s
         if process.returncode is None:
+            # SIGINT: the server finishes its recordings. A hung (e.g. stopped) one cannot,
+            # and its write-ahead log is recovered by the session's next server instead.
             with contextlib.suppress(ProcessLookupError):
-                process.send_signal(signal.SIGINT)  # the server finishes its recordings
+                process.send_signal(signal.SIGINT if grace_s > 0 else signal.SIGKILL)
             try:
-                await asyncio.wait_for(process.wait(), self.stop_timeout_s)
+                await asyncio.wait_for(process.wait(), max(grace_s, 0.1))
             except TimeoutError:
                 log.warning("teleop server %s ignored SIGINT; killing it", process.pid)
                 with contextlib.suppress(ProcessLookupError):

@@ -15,26 +15,31 @@ async def reap_once(coordinator: Coordinator, now: float | None = None) -> list[
     """One sweep; returns the (session id, reason) pairs it ended.
 
     - no heartbeat for `heartbeat_timeout_s` (tab closed, phone locked): abandoned
+    - queued for longer than the admission's `max_wait_s`: queue_timeout
     - past the session's time limit since it became ready: timeout
-    - its teleop server died: error
+    - its teleop server exited: restarted (queued again at its place), or error past
+      `max_restarts`
     """
     now = time.time() if now is None else now
-    timeout = coordinator.config.heartbeat_timeout_s
+    config = coordinator.config
     verdicts: list[tuple[str, str]] = []
     for session in await coordinator.store.live_sessions():
         reason = None
-        if now - session.last_heartbeat_at > timeout:
+        waited_s = now - (session.queued_at or session.created_at)
+        if now - session.last_heartbeat_at > config.heartbeat_timeout_s:
             reason = "abandoned"
+        elif session.state == "queued" and waited_s > config.admission.max_wait_s:
+            reason = "queue_timeout"
         elif session.state == "ready":
             if session.ready_at is not None and now > session.ready_at + session.time_limit_s:
                 reason = "timeout"
             elif coordinator.pool.alive(session.id) is False:
-                reason = "error"
-        if reason is not None:
-            error = "the teleop server exited" if reason == "error" else None
-            if await coordinator.end(session.id, reason, error=error):
-                log.info("reaped session %s: %s", session.id, reason)
-                verdicts.append((session.id, reason))
+                if await coordinator.restart(session.id, "exited", "the teleop server exited"):
+                    verdicts.append((session.id, "restarted"))
+                continue
+        if reason is not None and await coordinator.end(session.id, reason):
+            log.info("reaped session %s: %s", session.id, reason)
+            verdicts.append((session.id, reason))
     return verdicts
 
 

@@ -9,7 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from crowdteleop.vocab import Outcome, WorkerDevice
 
 SessionState = Literal["queued", "starting", "ready", "ended"]
-EndedReason = Literal["left", "timeout", "abandoned", "completed", "error"]
+EndedReason = Literal["left", "timeout", "abandoned", "completed", "error", "queue_timeout"]
 MAX_SDP = 64 * 1024
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
 
@@ -28,6 +28,15 @@ class JoinRequest(Strict):
         default_factory=dict, description="the join link's query-string parameters"
     )
     campaign: str | None = Field(None, max_length=64)
+    worker_token: str | None = Field(
+        None,
+        max_length=512,
+        description="the token this browser was given before: proves a rejoin is the same browser",
+    )
+    take_over: bool = Field(
+        False,
+        description="move the worker's live session here from another browser (it is told)",
+    )
 
     @field_validator("params")
     @classmethod
@@ -75,6 +84,12 @@ class SessionView(BaseModel):
     redirect_url: str | None
     ice_servers: list[str]
     ended_reason: EndedReason | None
+    notice: str | None = Field(
+        None, description="why a running session waits again (its robot crashed or hung)"
+    )
+    ready_at: float | None = Field(
+        None, description="when the session's current robot became ready: a new value, a new robot"
+    )
 
 
 class HeartbeatRequest(Strict):
@@ -94,6 +109,11 @@ class PairingView(BaseModel):
 
 class PairRequest(Strict):
     code: str = Field(max_length=32)
+    key: str | None = Field(
+        None,
+        max_length=128,
+        description="the long key of the QR code's link: never rate limited (unguessable)",
+    )
 
 
 class PairResponse(BaseModel):
@@ -190,3 +210,5 @@ class AdminOverview(BaseModel):
     completion_time_per_worker: list[DurationSummary]
     completion_time_per_interface: list[DurationSummary]
     totals: dict[str, int]
+    refusals: dict[str, int] = Field(description="requests refused by each limit, since start")
+    restarts: int = Field(description="sessions given a new teleop server, since start")

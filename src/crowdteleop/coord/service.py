@@ -1,7 +1,9 @@
 """The coordinator's core: sessions from queued to ended, the pool's slots, episode reports.
 
 All decisions that change who holds a slot happen under one asyncio lock, so admission is
-strictly FIFO and the capacity is never exceeded; the database records every step.
+strictly FIFO and the capacity is never exceeded; the database records every step. A session
+whose teleop server exits or hangs is queued again at its old place with its count kept
+(`restart`), as is every running session when the coordinator itself restarts.
 """
 
 from __future__ import annotations
@@ -9,99 +11,96 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import secrets
 import time
 from typing import Any
 
 from crowdteleop.coord.campaign import CampaignConfig
 from crowdteleop.coord.config import CoordConfig
+from crowdteleop.coord.errors import ApiError
 from crowdteleop.coord.launcher import Launcher, LaunchError
+from crowdteleop.coord.limits import retry_after
+from crowdteleop.coord.metrics import CoordMetrics, RestartCause
 from crowdteleop.coord.pool import TeleopPool
-from crowdteleop.coord.queue import expected_remaining_s, mean_session_s, queue_etas
 from crowdteleop.coord.schemas import EpisodeAck, SessionView
 from crowdteleop.coord.security import new_completion_code, new_id, new_token, token_hash
 from crowdteleop.coord.session_keys import SessionKeys
-from crowdteleop.coord.spares import SpareKey, SparePool
+from crowdteleop.coord.spares import SparePool
 from crowdteleop.coord.store import Store
 from crowdteleop.coord.tables import Episode, Session, Worker
+from crowdteleop.coord.teleop_configs import TeleopConfigs, assignment_of
+from crowdteleop.coord.waits import WaitEstimates
 from crowdteleop.tasks import get_task
-from crowdteleop.teleop.config import TeleopConfig
-from crowdteleop.teleop.messages import Assignment, EpisodeReport
+from crowdteleop.teleop.messages import EpisodeReport
 
 log = logging.getLogger(__name__)
 
 PROLIFIC_COMPLETE = "https://app.prolific.com/submissions/complete?cc="
-MEAN_CACHE_S = 10.0
-
-
-def deep_merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
-    merged = dict(base)
-    for key, value in extra.items():
-        if isinstance(value, dict) and isinstance(merged.get(key), dict):
-            merged[key] = deep_merge(merged[key], value)
-        else:
-            merged[key] = value
-    return merged
-
-
-def _assignment(config: TeleopConfig) -> Assignment:
-    """What a warm spare needs to become the server of the session `config` describes."""
-    assert config.admin_token is not None  # the coordinator always gives one
-    return Assignment(
-        session_id=config.session_id,
-        worker_id=config.worker_id,
-        token=config.token,
-        admin_token=config.admin_token,
-        recording_directory=config.recording.directory,
-        report_url=config.report_url,
-        report_token=config.report_token,
-    )
 
 
 class Coordinator:
     def __init__(
-        self, config: CoordConfig, store: Store, launcher: Launcher, keys: SessionKeys
+        self,
+        config: CoordConfig,
+        store: Store,
+        launcher: Launcher,
+        keys: SessionKeys,
+        metrics: CoordMetrics | None = None,
     ) -> None:
         self.config = config
         self.store = store
         self.keys = keys
+        self.metrics = metrics or CoordMetrics()
+        self.configs = TeleopConfigs(config, keys)
         self.pool = TeleopPool(launcher, config.capacity)
-        self.spares = SparePool(launcher, self._spare_config, config.spare_servers)
+        self.spares = SparePool(launcher, self.configs.for_spare, config.spare_servers)
         self.lock = asyncio.Lock()
         self._launches: dict[str, asyncio.Task[None]] = {}
-        self._mean: tuple[float, float] | None = None  # (computed at, value)
+        self.waits = WaitEstimates(store, config)
 
     # --- lifecycle ------------------------------------------------------------------------
 
     async def start(self) -> None:
-        """Sessions a previous run left live have no server any more: end them."""
+        """Sessions a previous run left live keep their place: the queued stay queued, and
+        those that had a server (gone with the previous run) are queued again ahead of them,
+        their counts kept. Every page gets a fresh heartbeat allowance."""
         await self.store.save_campaigns(self.config.campaigns)
-        for session in await self.store.live_sessions():
-            await self._mark_ended(session.id, "error", error="coordinator restarted")
-        self.spares.fill(self._spare_keys())
+        now = time.time()
+        async with self.lock:
+            for session in await self.store.live_sessions():
+                if session.state == "queued":
+                    await self.store.update_session(
+                        session.id, only_if_state=("queued",), last_heartbeat_at=now
+                    )
+                elif await self.store.requeue(
+                    session.id, "the coordinator restarted", count_restart=False
+                ):
+                    self.metrics.restarts.labels(cause="coordinator_restart").inc()
+            await self._admit()
+        self.spares.fill(self.configs.spare_keys())
 
     async def close(self) -> None:
-        """Stop every teleop server; live sessions end with reason 'error' (shutdown)."""
+        """Stop every teleop server (each stores its running episode). The sessions stay as
+        they are in the database: the next start gives them back their places (`start`)."""
         for task in list(self._launches.values()):
             task.cancel()
         for task in list(self._launches.values()):
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await task
-        async with self.lock:
-            for session in await self.store.live_sessions():
-                await self._mark_ended(session.id, "error", error="coordinator shut down")
-                self.pool.release(session.id)
         await self.spares.close()
         await self.pool.close()
 
     # --- sessions -------------------------------------------------------------------------
 
-    async def create_session(self, worker: Worker, campaign: CampaignConfig) -> Session:
-        """The worker's live session, or a new one in the queue (admitted at once if free)."""
+    async def create_session(
+        self, worker: Worker, campaign: CampaignConfig, client_tag: str | None = None
+    ) -> Session:
+        """The worker's live session, or a new one in the queue (admitted at once if free).
+        A new one is refused past the admission limits (`CoordConfig.admission`)."""
         async with self.lock:
             existing = await self.store.live_session_of(worker.id)
             if existing is not None:
                 return existing
+            await self._check_admission(client_tag)
             index = await self.store.count_sessions(campaign.name)
             task, robot, controller = campaign.assignment(index)
             now = time.time()
@@ -119,12 +118,51 @@ class Coordinator:
                     demos_required=campaign.demos_required,
                     demos_done=0,
                     created_at=now,
+                    queued_at=now,
+                    restarts=0,
+                    client_tag=client_tag,
                     last_heartbeat_at=now,
                     report_token_hash="",
                 )
             )
             await self._admit()
         return await self.store.session(session.id) or session
+
+    async def _check_admission(self, client_tag: str | None) -> None:
+        """Refuse a new session past the per-address, queue-length and wait limits (the
+        caller holds the lock, so the counts cannot change under it)."""
+        limits = self.config.admission
+        if client_tag is not None:
+            live = await self.store.live_sessions_of_client(client_tag)
+            if live >= limits.live_sessions_per_address:
+                self.metrics.refused("sessions_per_address")
+                raise ApiError(
+                    429,
+                    "too_many_sessions",
+                    f"{live} sessions are already open from your network; finish or close "
+                    "one first",
+                )
+        if self.pool.free > 0:
+            return  # admitted at once: no queue to join
+        positions = await self.waits.positions()
+        if len(positions) >= limits.max_queue:
+            self.metrics.refused("queue_full")
+            raise ApiError(
+                503,
+                "queue_full",
+                f"the queue is full ({len(positions)} waiting); please try again later",
+                headers=retry_after(60),
+            )
+        wait_s = await self.waits.next_wait_s(len(positions))
+        if wait_s > limits.max_wait_s:
+            self.metrics.refused("wait_too_long")
+            raise ApiError(
+                503,
+                "wait_too_long",
+                f"the wait is about {wait_s / 60:.0f} min, longer than this study's "
+                f"{limits.max_wait_s / 60:.0f} min; please try again later",
+                headers=retry_after(min(wait_s - limits.max_wait_s, 3600)),
+            )
 
     async def _admit(self) -> None:
         """Give free slots to the oldest queued sessions (caller holds the lock)."""
@@ -150,9 +188,9 @@ class Coordinator:
         report_token = new_token()
         await self.store.update_session(session_id, report_token_hash=token_hash(report_token))
         try:
-            config = self.teleop_config(session, report_token)
+            config = self.configs.for_session(session, report_token)
             key = (session.task, session.robot, session.controller)
-            handle = await self.spares.take(key, _assignment(config))
+            handle = await self.spares.take(key, assignment_of(config))
             self.spares.fill([key])  # replace the spare (or start one for next time)
             if handle is None:
                 handle = await self.pool.launcher.start(config)
@@ -160,6 +198,7 @@ class Coordinator:
             raise
         except (LaunchError, ValueError, OSError) as exc:
             log.error("session %s: %s", session_id, exc)
+            self.metrics.launch_failures.inc()
             await self.end(session_id, "error", error=str(exc)[-2000:])
             return
         async with self.lock:
@@ -168,6 +207,7 @@ class Coordinator:
                 self.pool.stop_later(handle)
                 return
             slot.handle = handle
+            slot.healthy_at = time.monotonic()  # probed from now on (coord/liveness.py)
             now = time.time()
             await self.store.update_session(
                 session_id,
@@ -178,64 +218,6 @@ class Coordinator:
                 teleop_url=handle.url,
             )
         await self.store.log("ready", session_id, session.worker_id, url=handle.url)
-
-    def teleop_config(self, session: Session, report_token: str) -> TeleopConfig:
-        directory = (self.config.data_dir / "episodes" / session.campaign / session.id).resolve()
-        fields = deep_merge(
-            self.config.teleop,
-            {
-                "session_id": session.id,
-                "worker_id": session.worker_id,
-                "token": self.keys.teleop_token(session.id),
-                "admin_token": self.keys.teleop_admin_token(session.id),
-                "sim": {"task": session.task, "robot": session.robot},
-                "control": {"controller": session.controller},
-                "recording": {"directory": str(directory)},
-                "ice_servers": list(self.config.ice_servers),
-                "allowed_origins": [self.config.public_url],
-                "report_url": f"{self.config.report_base_url}/internal/episodes",
-                "report_token": report_token,
-            },
-        )
-        return TeleopConfig.model_validate(fields)
-
-    def _spare_keys(self) -> list[SpareKey]:
-        """The (task, robot, controller) combinations the campaigns hand out, round-robin."""
-        keys: list[SpareKey] = []
-        for campaign in self.config.campaigns:
-            tasks, robots, controllers = campaign.tasks, campaign.robots, campaign.controllers
-            for n in range(max(len(tasks), len(robots), len(controllers))):
-                key = (
-                    tasks[n % len(tasks)],
-                    robots[n % len(robots)],
-                    controllers[n % len(controllers)],
-                )
-                if key not in keys:
-                    keys.append(key)
-        return keys
-
-    def _spare_config(self, key: SpareKey) -> TeleopConfig:
-        """A spare's config: the simulation of `key`, a placeholder identity (standby)."""
-        task, robot, controller = key
-        spare_id = f"spare-{secrets.token_hex(6)}"
-        fields = deep_merge(
-            self.config.teleop,
-            {
-                "session_id": spare_id,
-                "worker_id": "unassigned",
-                "token": new_token(),
-                "admin_token": new_token(),
-                "standby": True,
-                "sim": {"task": task, "robot": robot},
-                "control": {"controller": controller},
-                "recording": {
-                    "directory": str((self.config.data_dir / "spares" / spare_id).resolve())
-                },
-                "ice_servers": list(self.config.ice_servers),
-                "allowed_origins": [self.config.public_url],
-            },
-        )
-        return TeleopConfig.model_validate(fields)
 
     async def end(
         self,
@@ -254,6 +236,30 @@ class Coordinator:
             await self._admit()
         return ended
 
+    async def restart(self, session_id: str, cause: RestartCause, why: str) -> bool:
+        """The session's server exited or hung: stop it (at once: a hung server gets no
+        grace) and queue the session again at its old place with its count kept, at most
+        `max_restarts` times; past that it ends as `error`. False if it was not live."""
+        async with self.lock:
+            session = await self.store.session(session_id)
+            if session is None or session.state not in ("starting", "ready"):
+                return False
+            slot = self.pool.slots.pop(session_id, None)
+            if slot is not None and slot.handle is not None:
+                self.pool.stop_later(slot.handle, grace_s=0.0 if cause == "hung" else None)
+            if session.restarts >= self.config.max_restarts:
+                restarted = False
+                await self._mark_ended(session_id, "error", error=why)
+            else:
+                restarted = await self.store.requeue(session_id, why)
+                if restarted:
+                    self.metrics.restarts.labels(cause=cause).inc()
+            await self._admit()
+        log.warning(
+            "session %s: %s (%s)", session_id, why, "queued again" if restarted else "ended"
+        )
+        return restarted
+
     async def _mark_ended(
         self,
         session_id: str,
@@ -270,7 +276,8 @@ class Coordinator:
             session_id, only_if_state=("queued", "starting", "ready"), **fields
         )
         if ended:
-            self._mean = None
+            self.waits.forget_mean()
+            self.metrics.ended.labels(reason=reason).inc()
             await self.store.log("ended", session_id, reason=reason)
         return ended
 
@@ -303,6 +310,8 @@ class Coordinator:
                 created_at=time.time(),
             )
         )
+        if new:
+            self.metrics.episodes.labels(outcome=report.outcome).inc()
         completed = False
         if new and report.outcome == "success" and done >= session.demos_required:
             campaign = self.config.campaign(session.campaign)
@@ -323,29 +332,9 @@ class Coordinator:
 
     # --- views ----------------------------------------------------------------------------
 
-    async def mean_session_s(self, fallback_s: float) -> float:
-        now = time.monotonic()
-        if self._mean is None or now - self._mean[0] > MEAN_CACHE_S:
-            self._mean = (now, mean_session_s(await self.store.ended_durations(), -1.0))
-        value = self._mean[1]
-        return fallback_s if value < 0 else value
-
     async def queue_positions(self) -> dict[str, tuple[int, float]]:
         """Queued session id -> (1-based position, estimated wait in seconds)."""
-        live = await self.store.live_sessions()
-        queued = [s for s in live if s.state == "queued"]
-        if not queued:
-            return {}
-        fallback = self.config.default_campaign.time_limit_s
-        mean = await self.mean_session_s(fallback)
-        now = time.time()
-        remaining = [
-            expected_remaining_s(now - (s.ready_at or now), mean, s.time_limit_s)
-            for s in live
-            if s.state in ("starting", "ready")
-        ]
-        etas = queue_etas(self.config.capacity, remaining, len(queued), mean)
-        return {s.id: (i + 1, eta) for i, (s, eta) in enumerate(zip(queued, etas, strict=True))}
+        return await self.waits.positions()
 
     async def view(self, session: Session, worker: Worker | None = None) -> SessionView:
         position, eta = None, None
@@ -376,4 +365,18 @@ class Coordinator:
             redirect_url=redirect,
             ice_servers=list(self.config.ice_servers),
             ended_reason=session.ended_reason,
+            notice=_notice(session),
+            ready_at=session.ready_at,
         )
+
+
+def _notice(session: Session) -> str | None:
+    """What the page says while a session that had a robot waits for a new one."""
+    requeued = session.queued_at is not None and session.queued_at > session.created_at
+    if session.state not in ("queued", "starting") or not requeued or not session.error:
+        return None
+    why = session.error[:1].upper() + session.error[1:]
+    done = session.demos_done
+    plural = "s" if done != 1 else ""
+    kept = f" Your {done} saved demonstration{plural} still count." if done else ""
+    return f"{why}: a new robot is on its way.{kept}"

@@ -69,6 +69,10 @@ class SessionKeys:
         """The session's worker token: what the coordinator puts in every forwarded offer."""
         return self._derive(b"teleop-token", session_id)
 
+    def client_tag(self, client_key: str) -> str:
+        """What the database keeps of a client's address: an HMAC, no address."""
+        return self._derive(b"client", client_key)
+
     def teleop_admin_token(self, session_id: str) -> str:
         """The session's admin token: privileged peers, `/telemetry`, `/assign`."""
         return self._derive(b"teleop-admin-token", session_id)

@@ -6,20 +6,20 @@ import time
 from collections.abc import Iterable
 from typing import Any
 
-from sqlalchemy import CursorResult, Result, func, select, update
+from sqlalchemy import delete, func, select, update
 from sqlalchemy.exc import IntegrityError
-from sqlalchemy.ext.asyncio import AsyncEngine
+from sqlalchemy.ext.asyncio import AsyncEngine, AsyncSession
 from sqlalchemy.sql import ColumnElement
 
 from crowdteleop.coord.campaign import CampaignConfig
-from crowdteleop.coord.db import make_sessionmaker
+from crowdteleop.coord.db import make_sessionmaker, rowcount
+from crowdteleop.coord.pairing_store import PairingStore
 from crowdteleop.coord.security import new_id, new_token, token_hash
 from crowdteleop.coord.tables import (
     Base,
     Campaign,
     Episode,
     Event,
-    PairingCode,
     PhoneToken,
     Session,
     Worker,
@@ -35,6 +35,7 @@ class Store:
         # SQLAlchemy calls these sessions; here each is one short transaction (`Session` is a
         # worker's teleop session, a table).
         self.transactions = make_sessionmaker(engine)
+        self.pairing = PairingStore(self.transactions)
 
     async def close(self) -> None:
         await self.engine.dispose()
@@ -62,9 +63,16 @@ class Store:
         study_id: str | None = None,
         external_session: str | None = None,
         params: dict[str, str] | None = None,
+        presented_token: str | None = None,
+        take_over: bool = False,
     ) -> tuple[Worker, str, bool]:
-        """(worker, a new bearer token, created?). The same external id: the same worker."""
-        token = new_token()
+        """(worker, their bearer token, created?). The same external id: the same worker.
+
+        A browser that presents the token it was given before keeps it. Any other browser
+        joining with the id of a worker whose session is live is refused (`SessionInUseError`)
+        unless it asks to take over: then every earlier token of the worker is revoked (the
+        first browser is told as much on its next call) and the session's phones unpaired.
+        """
         now = time.time()
         for _attempt in range(2):  # a concurrent first join of the same id: retry once
             try:
@@ -91,8 +99,21 @@ class Store:
                         db.add(worker)
                         await db.flush()
                     else:
+                        kept = await _own_token(db, worker.id, presented_token)
+                        if kept is not None:
+                            return worker, kept, False
+                        live = await db.scalar(
+                            select(Session.id).where(
+                                Session.worker_id == worker.id, Session.state.in_(LIVE_STATES)
+                            )
+                        )
+                        if live is not None and not take_over:
+                            raise SessionInUseError(live)
+                        if live is not None:
+                            await _take_over(db, worker.id, live, now)
                         worker.external_session = external_session or worker.external_session
                         worker.campaign = campaign  # the link they came by last
+                    token = new_token()
                     db.add(
                         WorkerToken(
                             token_hash=token_hash(token), worker_id=worker.id, created_at=now
@@ -106,13 +127,23 @@ class Store:
                 continue
         raise RuntimeError("could not record the join")
 
-    async def worker_by_token(self, token: str) -> Worker | None:
+    async def token_holder(self, token: str) -> tuple[Worker | None, bool]:
+        """(the worker a token belongs to, revoked?): a revoked token names its old owner."""
         async with self.transactions() as db:
-            return await db.scalar(
-                select(Worker)
+            row = await db.execute(
+                select(Worker, WorkerToken.revoked_at)
                 .join(WorkerToken, WorkerToken.worker_id == Worker.id)
                 .where(WorkerToken.token_hash == token_hash(token))
             )
+            found = row.first()
+            if found is None:
+                return None, False
+            return found[0], found[1] is not None
+
+    async def worker_by_token(self, token: str) -> Worker | None:
+        """The worker of a valid (not revoked) token."""
+        worker, revoked = await self.token_holder(token)
+        return None if revoked else worker
 
     async def worker(self, worker_id: str) -> Worker | None:
         async with self.transactions() as db:
@@ -162,6 +193,40 @@ class Store:
             )
             return list(rows)
 
+    async def live_sessions_of_client(self, client_tag: str) -> int:
+        async with self.transactions() as db:
+            statement = select(func.count()).select_from(Session)
+            return (
+                await db.scalar(
+                    statement.where(
+                        Session.client_tag == client_tag, Session.state.in_(LIVE_STATES)
+                    )
+                )
+                or 0
+            )
+
+    async def requeue(self, session_id: str, why: str, count_restart: bool = True) -> bool:
+        """Put a session whose server is gone back in the queue, at its old place (its
+        `created_at`), with its demonstrations kept. False if it was not starting or ready."""
+        now = time.time()
+        fields: dict[str, Any] = {
+            "state": "queued",
+            "queued_at": now,
+            "admitted_at": None,
+            "ready_at": None,
+            "teleop_url": None,
+            "last_heartbeat_at": now,  # the page is told on its next call; give it time
+            "error": why,
+        }
+        if count_restart:
+            fields["restarts"] = Session.restarts + 1
+        requeued = await self.update_session(
+            session_id, only_if_state=("starting", "ready"), **fields
+        )
+        if requeued:
+            await self.log("requeued", session_id, reason=why, counted=count_restart)
+        return requeued
+
     async def count_sessions(self, campaign: str) -> int:
         async with self.transactions() as db:
             return (
@@ -180,7 +245,7 @@ class Store:
             if only_if_state is not None:
                 statement = statement.where(Session.state.in_(list(only_if_state)))
             result = await db.execute(statement.values(**fields))
-            return _rowcount(result) == 1
+            return rowcount(result) == 1
 
     async def ended_durations(self, limit: int = 200) -> list[float]:
         """How long recent sessions held their slot (ready to ended)."""
@@ -268,64 +333,39 @@ class Store:
                 "successes": await count(Episode, Episode.outcome == "success"),
             }
 
-    # --- pairing --------------------------------------------------------------------------
-
-    async def add_pairing_code(self, session_id: str, code: str, expires_at: float) -> bool:
-        """False if `code` is already live for some session (the caller draws another)."""
-        async with self.transactions.begin() as db:
-            clash = await db.scalar(
-                select(PairingCode.id).where(
-                    PairingCode.code == code,
-                    PairingCode.used_at.is_(None),
-                    PairingCode.expires_at > time.time(),
-                )
-            )
-            if clash is not None:
-                return False
-            db.add(PairingCode(code=code, session_id=session_id, expires_at=expires_at))
-            return True
-
-    async def redeem_pairing_code(self, code: str, now: float) -> tuple[str, str] | None:
-        """(session id, phone token) for a live code, which is used up; else None."""
-        async with self.transactions.begin() as db:
-            row = await db.scalar(
-                select(PairingCode).where(
-                    PairingCode.code == code,
-                    PairingCode.used_at.is_(None),
-                    PairingCode.expires_at > now,
-                )
-            )
-            if row is None:
-                return None
-            claimed = await db.execute(
-                update(PairingCode)
-                .where(PairingCode.id == row.id, PairingCode.used_at.is_(None))
-                .values(used_at=now)
-            )
-            if _rowcount(claimed) != 1:  # someone else redeemed it in between
-                return None
-            token = new_token()
-            db.add(
-                PhoneToken(token_hash=token_hash(token), session_id=row.session_id, created_at=now)
-            )
-            db.add(Event(at=now, kind="paired", session_id=row.session_id, data={}))
-            return row.session_id, token
-
-    async def session_by_phone_token(self, token: str) -> Session | None:
-        async with self.transactions() as db:
-            return await db.scalar(
-                select(Session)
-                .join(PhoneToken, PhoneToken.session_id == Session.id)
-                .where(PhoneToken.token_hash == token_hash(token))
-            )
-
 
 class _DuplicateError(Exception):
     pass
 
 
-def _rowcount(result: Result[*tuple[Any, ...]]) -> int:
-    """The rows an UPDATE matched. The ORM runs an UPDATE to a `CursorResult`; SQLAlchemy
-    types `AsyncSession.execute` as returning a plain `Result`, which has no row count."""
-    assert isinstance(result, CursorResult)
-    return result.rowcount
+class SessionInUseError(Exception):
+    """Another browser holds this worker's live session (the join may take it over)."""
+
+    def __init__(self, session_id: str) -> None:
+        super().__init__(session_id)
+        self.session_id = session_id
+
+
+async def _own_token(db: AsyncSession, worker_id: str, token: str | None) -> str | None:
+    """`token` if it is a valid token of this worker (the same browser coming back)."""
+    if not token:
+        return None
+    found = await db.scalar(
+        select(WorkerToken.token_hash).where(
+            WorkerToken.token_hash == token_hash(token),
+            WorkerToken.worker_id == worker_id,
+            WorkerToken.revoked_at.is_(None),
+        )
+    )
+    return token if found is not None else None
+
+
+async def _take_over(db: AsyncSession, worker_id: str, session_id: str, now: float) -> None:
+    """Revoke the worker's tokens and unpair the session's phones (a new browser takes over)."""
+    await db.execute(
+        update(WorkerToken)
+        .where(WorkerToken.worker_id == worker_id, WorkerToken.revoked_at.is_(None))
+        .values(revoked_at=now)
+    )
+    await db.execute(delete(PhoneToken).where(PhoneToken.session_id == session_id))
+    db.add(Event(at=now, kind="taken_over", session_id=session_id, worker_id=worker_id, data={}))

@@ -44,6 +44,9 @@ class WorkerToken(Base):
     token_hash: Mapped[str] = mapped_column(String(64), primary_key=True)
     worker_id: Mapped[str] = mapped_column(ForeignKey("workers.id", ondelete="CASCADE"), index=True)
     created_at: Mapped[float] = mapped_column(Float)
+    # Set when another browser took the worker's live session over: the token then answers
+    # 401 "taken_over", so the first browser learns why (coord/identity.py).
+    revoked_at: Mapped[float | None] = mapped_column(Float, default=None)
 
 
 class Session(Base):
@@ -61,6 +64,13 @@ class Session(Base):
     demos_required: Mapped[int] = mapped_column(Integer)
     demos_done: Mapped[int] = mapped_column(Integer, default=0)
     created_at: Mapped[float] = mapped_column(Float, index=True)  # queue order
+    # When it last joined the queue (a session whose server crashed is queued again, at its
+    # old place: created_at keeps the order, queued_at times the wait).
+    queued_at: Mapped[float | None] = mapped_column(Float, default=None)
+    restarts: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    # HMAC of the client's address key under the server secret: counts live sessions per
+    # address without keeping addresses (coord/clients.py, coord/session_keys.py).
+    client_tag: Mapped[str | None] = mapped_column(String(64), index=True, default=None)
     admitted_at: Mapped[float | None] = mapped_column(Float)
     ready_at: Mapped[float | None] = mapped_column(Float)
     ended_at: Mapped[float | None] = mapped_column(Float)
@@ -104,6 +114,8 @@ class PairingCode(Base):
     )
     expires_at: Mapped[float] = mapped_column(Float)
     used_at: Mapped[float | None] = mapped_column(Float)
+    # The QR code's link also carries a long key: unguessable, so never rate limited.
+    key_hash: Mapped[str | None] = mapped_column(String(64), default=None)
 
 
 class PhoneToken(Base):

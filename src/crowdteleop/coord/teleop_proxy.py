@@ -9,7 +9,7 @@ import aiohttp
 from crowdteleop.coord.errors import ApiError
 from crowdteleop.coord.schemas import OfferBody
 from crowdteleop.coord.tables import Session
-from crowdteleop.teleop.messages import OfferAnswer, OfferRequest
+from crowdteleop.teleop.messages import OfferAnswer, OfferRequest, missing_offer_sections
 from crowdteleop.teleop.protocol import PeerRole
 
 log = logging.getLogger(__name__)
@@ -25,6 +25,9 @@ async def forward_offer(
     which the teleop server's origin check lets through."""
     if session.state != "ready" or not session.teleop_url:
         raise ApiError(409, "not_ready", f"the session is {session.state}, not ready")
+    missing = missing_offer_sections(offer.sdp, role)
+    if missing:  # refused here as the teleop server would: no round trip, no peer
+        raise ApiError(400, "incomplete_offer", f"the offer has no {' or '.join(missing)} section")
     body = OfferRequest(sdp=offer.sdp, token=token, role=role)
     try:
         async with http.post(

@@ -79,7 +79,8 @@ class VideoConfig(BaseModel):
 
 
 class LimitsConfig(BaseModel):
-    """What one peer may send before its messages are refused."""
+    """What one peer may send before its messages are refused, how many peers a session
+    takes, and how long a peer may hold its slot without a connection."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -87,6 +88,12 @@ class LimitsConfig(BaseModel):
     messages_per_second: float = Field(200.0, gt=0, description="sustained, per peer")
     burst: int = Field(100, ge=1, description="messages a peer may send at once")
     max_peers: int = Field(4, ge=1, le=16)
+    connect_timeout_s: float = Field(
+        15.0,
+        gt=0,
+        description="a peer not connected this long after its offer (or after losing its "
+        "connection) is dropped, so an offer whose ICE never completes frees its slot",
+    )
 
 
 class RecordingConfig(BaseModel):

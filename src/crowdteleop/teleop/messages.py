@@ -42,6 +42,28 @@ class OfferRequest(BaseModel):
     admin_token: str | None = Field(None, max_length=256)
 
 
+# The m= sections an offer needs per role. Every client talks on the `control` and `events`
+# data channels (one `m=application` section); the worker's page watches the robot, so its
+# offer also has a video section (the browser's rtc.js always adds one for the worker). The
+# phone (phone.js) offers data channels only, and so may an admin bot driving without video.
+REQUIRED_OFFER_SECTIONS: dict[PeerRole, tuple[str, ...]] = {
+    "worker": ("application", "video"),
+    "phone": ("application",),
+    "admin": ("application",),
+}
+
+
+def missing_offer_sections(sdp: str, role: PeerRole) -> list[str]:
+    """The media sections (``m=`` kinds) `role`'s offer needs but lacks; empty if none.
+
+    Checked before a peer is made: aiortc answers even a bare ``v=0`` with an empty answer,
+    and such a peer never connects, yet holds one of the session's few slots. An offer that
+    cannot carry the session's channels (or, for the worker, its video) is refused outright.
+    """
+    offered = {line[2:].split(" ", 1)[0] for line in sdp.splitlines() if line.startswith("m=")}
+    return [kind for kind in REQUIRED_OFFER_SECTIONS[role] if kind not in offered]
+
+
 class OfferAnswer(BaseModel):
     """The teleop server's answer to an accepted offer."""
 

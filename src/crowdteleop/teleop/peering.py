@@ -1,9 +1,10 @@
 """The session's connected clients: an accepted offer becomes a `Peer` whose data channels feed
-the dispatcher; a peer that leaves is closed and counted."""
+the dispatcher; a peer that leaves, or does not connect in time, is closed and counted."""
 
 from __future__ import annotations
 
 import asyncio
+import logging
 import secrets
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -27,6 +28,8 @@ from crowdteleop.teleop.peers import Peer
 from crowdteleop.teleop.remb import RembTap
 from crowdteleop.teleop.video import FrameSource, SimVideoTrack
 
+log = logging.getLogger(__name__)
+
 CLIENT_CHANNELS = frozenset({"control", "events", "admin"})
 
 MessageHandler = Callable[[Peer, str, str | bytes], None]
@@ -48,6 +51,13 @@ class PeerSet:
     ``on_message`` gets each message a client sends on ``control`` or ``events``;
     ``on_events_open`` runs when a peer's events channel opens (the server says hello);
     ``on_left`` runs once per peer that leaves (it may have been driving the arm).
+
+    A peer holds one of the session's ``limits.max_peers`` slots from its offer on, so one
+    that is not connected within ``limits.connect_timeout_s`` (its ICE never completed, or it
+    lost its connection and did not get it back) is dropped and counted as
+    ``peer_connect_timeout``: a stale offer cannot lock the worker out of their robot.
+    aiortc itself has no "disconnected" state (a lost peer turns "failed" once ICE consent
+    expires, about 30 s), and a peer made from an offer without transports never leaves "new".
     """
 
     def __init__(
@@ -70,6 +80,8 @@ class PeerSet:
         self._on_left = on_left
         self._peers: dict[str, Peer] = {}
         self._departed_errors: Counter[str] = Counter()
+        self._unconnected: dict[str, asyncio.Task[None]] = {}  # peer id -> its waiting timer
+        self._timers: set[asyncio.Task[None]] = set()  # every timer until it ends
 
     def __len__(self) -> int:
         return len(self._peers)
@@ -107,6 +119,7 @@ class PeerSet:
             guard=InboundGuard(limits.max_message_bytes, limits.messages_per_second, limits.burst),
         )
         self._peers[peer.peer_id] = peer
+        self._start_connect_timer(peer)
 
         @pc.on("datachannel")
         def on_datachannel(channel: RTCDataChannel) -> None:
@@ -114,8 +127,13 @@ class PeerSet:
 
         @pc.on("connectionstatechange")
         async def on_state() -> None:
-            if pc.connectionState in ("failed", "closed"):
+            state = pc.connectionState
+            if state in ("failed", "closed"):
                 await self.drop(peer)
+            elif state == "connected":
+                self._stop_connect_timer(peer)
+            elif peer.peer_id in self._peers:  # connecting again (or "disconnected")
+                self._start_connect_timer(peer)
 
         try:
             if offer.role != "phone" and "\nm=video " in offer.sdp:
@@ -135,6 +153,7 @@ class PeerSet:
 
     async def drop(self, peer: Peer) -> None:
         """Close a peer that left (idempotent)."""
+        self._stop_connect_timer(peer)
         self._remb.pop(peer.peer_id, None)
         if self._peers.pop(peer.peer_id, None) is None:
             return
@@ -143,8 +162,49 @@ class PeerSet:
         await peer.pc.close()
 
     async def close(self) -> None:
+        waiting, self._unconnected = list(self._unconnected.values()), {}
+        for timer in waiting:
+            timer.cancel()
+        # A timer already dropping its peer finishes closing it.
+        await asyncio.gather(*self._timers, return_exceptions=True)
         peers, self._peers = list(self._peers.values()), {}
         await asyncio.gather(*(peer.pc.close() for peer in peers))
+
+    def _start_connect_timer(self, peer: Peer) -> None:
+        """Drop `peer` unless it is connected within ``limits.connect_timeout_s`` (a timer
+        already running for it keeps its deadline)."""
+        if peer.peer_id in self._unconnected:
+            return
+        timer = asyncio.create_task(
+            self._drop_if_unconnected(peer), name=f"connect-timer-{peer.peer_id}"
+        )
+        self._unconnected[peer.peer_id] = timer
+        self._timers.add(timer)
+        timer.add_done_callback(self._timers.discard)
+
+    def _stop_connect_timer(self, peer: Peer) -> None:
+        timer = self._unconnected.pop(peer.peer_id, None)
+        if timer is not None:
+            timer.cancel()
+
+    async def _drop_if_unconnected(self, peer: Peer) -> None:
+        await asyncio.sleep(self._limits.connect_timeout_s)
+        # Out of the waiting timers: from here on `drop` and `close` let it finish.
+        self._unconnected.pop(peer.peer_id, None)
+        if peer.peer_id not in self._peers or peer.pc.connectionState == "connected":
+            return
+        log.info(
+            "peer %s (%s) not connected after %g s (%s): dropped",
+            peer.peer_id,
+            peer.role,
+            self._limits.connect_timeout_s,
+            peer.pc.connectionState,
+        )
+        self._departed_errors["peer_connect_timeout"] += 1
+        try:
+            await self.drop(peer)
+        except Exception:  # closing a half-made connection must not go unnoticed
+            log.exception("closing unconnected peer %s failed", peer.peer_id)
 
     async def video_link(self) -> LinkStats:
         """What the video senders put on the wire so far and what the receivers' RTCP reports

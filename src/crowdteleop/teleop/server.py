@@ -26,7 +26,13 @@ from crowdteleop.teleop.broadcast import TickBroadcaster
 from crowdteleop.teleop.clock import FixedRateClock
 from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.dispatch import Dispatcher
-from crowdteleop.teleop.messages import MAX_OFFER_BYTES, Assignment, OfferAnswer, OfferRequest
+from crowdteleop.teleop.messages import (
+    MAX_OFFER_BYTES,
+    Assignment,
+    OfferAnswer,
+    OfferRequest,
+    missing_offer_sections,
+)
 from crowdteleop.teleop.origin import origin_allowed
 from crowdteleop.teleop.peering import PeerSet
 from crowdteleop.teleop.peers import Peer
@@ -135,6 +141,15 @@ class TeleopServer:
             return self._http_error(401, "bad_token", "the session token is wrong")
         if offer.role == "admin" and not token_matches(offer.admin_token, self.config.admin_token):
             return self._http_error(403, "bad_admin_token", "admin role needs the admin token")
+        missing = missing_offer_sections(offer.sdp, offer.role)
+        if missing:
+            sections = " and ".join(f"an m={kind} section" for kind in missing)
+            return self._http_error(
+                400,
+                "incomplete_offer",
+                f"a {offer.role} offer needs {sections} (data channels; video for the "
+                "worker): create them before createOffer",
+            )
         if self.peers.full:
             return self._http_error(503, "full", "this session has all the peers it allows")
         try:

@@ -4,11 +4,28 @@ import { call } from "./api.js";
 
 const $ = (id) => document.getElementById(id);
 
+// Built with textContent, never markup: worker ids and campaign names come from the crowd.
+function row(cells, tag = "td") {
+  const tr = document.createElement("tr");
+  for (const value of cells) {
+    const cell = document.createElement(tag);
+    cell.textContent = value;
+    tr.append(cell);
+  }
+  return tr;
+}
+
 function table(element, rows, columns) {
-  const head = `<tr>${columns.map(([, label]) => `<th>${label}</th>`).join("")}</tr>`;
-  const cell = (value) => (typeof value === "number" ? (Number.isInteger(value) ? value : value.toFixed(1)) : value ?? "–");
-  const body = rows.map((row) => `<tr>${columns.map(([key]) => `<td>${cell(row[key])}</td>`).join("")}</tr>`).join("");
-  element.innerHTML = head + (body || `<tr><td colspan="${columns.length}" class="muted">none</td></tr>`);
+  const text = (value) => (typeof value === "number" ? String(Number.isInteger(value) ? value : value.toFixed(1)) : String(value ?? "–"));
+  const lines = [row(columns.map(([, label]) => label), "th")];
+  for (const item of rows) lines.push(row(columns.map(([key]) => text(item[key]))));
+  if (!rows.length) {
+    const empty = row(["none"]);
+    empty.firstChild.colSpan = columns.length;
+    empty.firstChild.className = "muted";
+    lines.push(empty);
+  }
+  element.replaceChildren(...lines);
 }
 
 async function refresh(token) {
@@ -27,6 +44,9 @@ async function refresh(token) {
     ["median_s", "median s"], ["min_s", "min s"], ["max_s", "max s"]];
   table($("per-worker"), o.completion_time_per_worker, summary);
   table($("per-interface"), o.completion_time_per_interface, summary);
+  const refusals = Object.entries(o.refusals || {}).map(([reason, count]) => ({ reason, count }));
+  table($("refusals"), refusals, [["reason", "refused by"], ["count", "since start"]]);
+  $("restarts").textContent = `${o.restarts} sessions given a new teleop server since start`;
 }
 
 async function open(token) {

@@ -162,8 +162,9 @@ function wireControls() {
   }, 1000 / SEND_HZ);
 }
 
-async function pair(code) {
-  const paired = await call("/api/pair", { method: "POST", body: { code } });
+async function pair(code, key) {
+  // The QR link's key proves the code was scanned, not guessed: never rate limited.
+  const paired = await call("/api/pair", { method: "POST", body: key ? { code, key } : { code } });
   phone.token = paired.phone_token;
   const session = await call("/api/phone/session", { token: phone.token });
   if (session.state !== "ready") throw new Error("your robot is not ready yet: try again in a moment");
@@ -186,13 +187,14 @@ async function pair(code) {
 async function main() {
   if (!("RTCPeerConnection" in window)) { banner("error", "This browser has no WebRTC: use Chrome or Safari."); return; }
   try { phone.protocol = await Protocol.load(); } catch (error) { banner("error", error.message); return; }
-  const submit = async (code) => {
-    try { await pair(code); }
+  const submit = async (code, key) => {
+    try { await pair(code, key); }
     catch (error) { banner("error", error.status === 404 ? "That code is wrong or has expired: get a new one on your computer." : error.message); }
   };
   $("pair-form").addEventListener("submit", (e) => { e.preventDefault(); submit($("code").value); });
-  const code = new URLSearchParams(location.search).get("code");
-  if (code) { $("code").value = code; submit(code); }
+  const query = new URLSearchParams(location.search);
+  const code = query.get("code");
+  if (code) { $("code").value = code; submit(code, query.get("key")); }
 }
 
 main();

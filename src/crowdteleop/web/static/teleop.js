@@ -28,6 +28,7 @@ class TeleopPage {
     this.tookControlForScript = false;
     this.ended = false;
     this.ready = false;
+    this.readyAt = null;  // the view's ready_at of the robot we are connected to
     this.timeline = { loaded: Date.now() };  // wall-clock ms marks of the way to the first frame
     Object.seal(this);
   }
@@ -70,14 +71,23 @@ function showView(view) {
   }
   $("demos").textContent = `${view.demos_done} / ${view.demos_required}`;
   $("instruction").textContent = view.instruction;
-  if (view.state === "starting") banner("info", "Starting your robot…");
+  if (view.state === "starting") banner("info", view.notice || "Starting your robot…");
+  else if (view.state === "queued" && view.notice) banner("info", view.notice);
   if (view.completion_code) finish(view);
   else if (view.state === "ended" && !page.ended) {
     page.ended = true;
     const why = { timeout: "Your session's time is up.", abandoned: "Your session expired.",
-                  left: "You left the session.", error: "Your robot stopped working. Please reload." };
+                  left: "You left the session.", error: "Your robot stopped working. Please reload.",
+                  queue_timeout: "The wait was too long; please try again later." };
     banner("error", why[view.ended_reason] || "Your session has ended.");
     if (page.connection) page.connection.close();
+  } else if (page.ready && (view.state !== "ready" || view.ready_at !== page.readyAt)) {
+    // Our robot's server crashed or hung: the session waits again at its place, its count
+    // kept. Drop the dead connection; `robotLoop` connects to the new robot when it is ready.
+    page.ready = false;
+    if (page.connection) page.connection.close();
+    page.connection = null;
+    if (view.notice) banner("info", view.notice);
   }
 }
 
@@ -109,6 +119,12 @@ async function heartbeat() {
     showView(await call(`/api/sessions/${page.view.session_id}/heartbeat`, {
       method: "POST", token: page.token, body: kind ? { interface: kind } : {} }));
   } catch (error) {
+    if (error.code === "taken_over" && !page.ended) {
+      page.ended = true;
+      banner("error", error.message);
+      if (page.connection) page.connection.close();
+      return;
+    }
     banner("error", `Lost contact with the server: ${error.message}`);
   }
 }
@@ -187,11 +203,16 @@ function showStatus() {
   });
   c.addEventListener("connection", ({ detail }) => {
     $("connection").textContent = detail.state;
-    if (["failed", "disconnected"].includes(detail.state) && !page.ended) {
+    if (["failed", "disconnected"].includes(detail.state) && !page.ended && c === page.connection) {
       banner("error", "Disconnected from your robot. Check your network; reload to reconnect.");
     }
   });
+}
+
+function statusTicker() {
   setInterval(() => {
+    const c = page.connection;
+    if (!c) return;
     const fps = c.fps(), latency = c.latencyMs(0.5);
     $("fps").textContent = `${fps.toFixed(0)} fps`;
     $("latency").textContent = latency === null ? "–" : `${latency.toFixed(0)} ms`;
@@ -204,9 +225,8 @@ function showStatus() {
 }
 
 function wireButtons() {
-  const c = page.connection;
-  $("start").onclick = () => c.request("start");
-  $("reset").onclick = () => c.request("reset");
+  $("start").onclick = () => page.connection && page.connection.request("start");
+  $("reset").onclick = () => page.connection && page.connection.request("reset");
   $("use-keyboard").onclick = () => useDevice(page.devices.keyboard);
   $("use-gamepad").onclick = () => useDevice(page.devices.gamepad);
   $("use-spacemouse").onclick = async () => {
@@ -248,8 +268,36 @@ async function main() {
       navigator.sendBeacon(`/api/sessions/${page.view.session_id}/leave?token=${encodeURIComponent(page.token)}`);
     }
   });
-  await waitUntilReady();
-  if (page.view.state !== "ready") return;
+  await robotLoop();
+}
+
+// Connect to the session's robot; if its server is replaced (crash, hang, coordinator restart)
+// wait for the new one and connect again. Devices and buttons are wired once.
+async function robotLoop() {
+  let wired = false;
+  while (!page.ended) {
+    await waitUntilReady();
+    if (page.view.state !== "ready") return;
+    if (!(await connectRobot())) return;
+    if (!wired) {
+      page.devices = { keyboard: new KeyboardDevice(), gamepad: new GamepadDevice(),
+                       spacemouse: new SpaceMouseDevice(), vr: new VRControllerDevice() };
+      page.device = page.devices.keyboard;
+      wireButtons();
+      controlLoop();
+      statusTicker();
+      pairPhone();
+      wired = true;
+    } else {
+      page.connection.messages.device = page.device.kind;
+    }
+    page.ready = true;
+    clearBanner();
+    while (page.ready && !page.ended) await new Promise((resolve) => setTimeout(resolve, 500));
+  }
+}
+
+async function connectRobot() {
   page.timeline.ready = Date.now();
   clearBanner();
   const connection = new TeleopConnection({
@@ -264,16 +312,11 @@ async function main() {
     await connection.connect(20000, page.timeline);
   } catch (error) {
     banner("error", `Could not connect to your robot: ${error.message}`);
-    return;
+    return false;
   }
   $("title").textContent = `Your robot: ${connection.state.hello.task}`;
-  page.devices = { keyboard: new KeyboardDevice(), gamepad: new GamepadDevice(),
-                   spacemouse: new SpaceMouseDevice(), vr: new VRControllerDevice() };
-  page.device = page.devices.keyboard;
-  wireButtons();
-  controlLoop();
-  pairPhone();
-  page.ready = true;
+  page.readyAt = page.view.ready_at;
+  return true;
 }
 
 main();

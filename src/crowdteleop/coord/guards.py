@@ -1,0 +1,104 @@
+"""The request-rate limits of one coordinator, and who a request is counted as.
+
+Joins are limited per client address and in total; wrong pairing codes per address and in
+total (the code space's budget: 28^6 codes, so a few hundred wrong guesses a minute from
+everyone together leave a live code safe for its two minutes); wrong admin tokens per
+address. A right QR link (its long key) is never limited, so a worker behind an address a
+guesser shares still pairs. See docs/security.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from starlette.requests import HTTPConnection
+
+from crowdteleop.coord.clients import ProxyTrust, client_key
+from crowdteleop.coord.config import CoordConfig
+from crowdteleop.coord.errors import ApiError
+from crowdteleop.coord.limits import WindowLimiter, retry_after
+from crowdteleop.coord.metrics import CoordMetrics, Refusal
+
+TOTAL = "all"
+
+
+@dataclass
+class Guards:
+    trust: ProxyTrust
+    metrics: CoordMetrics
+    joins_per_address: WindowLimiter
+    joins_total: WindowLimiter
+    pair_failures_per_address: WindowLimiter
+    pair_failures_total: WindowLimiter
+    admin_failures_per_address: WindowLimiter
+
+    @classmethod
+    def of(cls, config: CoordConfig, metrics: CoordMetrics) -> Guards:
+        admission = config.admission
+        return cls(
+            trust=ProxyTrust.of(config.trusted_proxies),
+            metrics=metrics,
+            joins_per_address=WindowLimiter(admission.joins_per_minute_per_address),
+            joins_total=WindowLimiter(admission.joins_per_minute),
+            pair_failures_per_address=WindowLimiter(config.pair_failures_per_minute),
+            pair_failures_total=WindowLimiter(config.pair_failures_per_minute_total),
+            admin_failures_per_address=WindowLimiter(config.admin_failures_per_minute),
+        )
+
+    def client(self, connection: HTTPConnection) -> str:
+        """The address (IPv6: /64) this request is counted under."""
+        return client_key(connection, self.trust)
+
+    def _refuse(self, reason: Refusal, wait_s: float, message: str) -> ApiError:
+        self.metrics.refused(reason)
+        return ApiError(429, "rate_limited", message, headers=retry_after(wait_s))
+
+    def admit_join(self, client: str) -> None:
+        """Count one join from `client`, or raise 429 past either join limit."""
+        wait = self.joins_per_address.wait_s(client)
+        if wait > 0:
+            raise self._refuse(
+                "join_rate_address", wait, f"too many joins from your network; wait {wait:.0f} s"
+            )
+        wait = self.joins_total.wait_s(TOTAL)
+        if wait > 0:
+            raise self._refuse(
+                "join_rate_total", wait, f"the study is busy with joins; wait {wait:.0f} s"
+            )
+        self.joins_per_address.hit(client)
+        self.joins_total.hit(TOTAL)
+
+    def check_pairing(self, client: str) -> None:
+        """Raise 429 if `client` (or everyone) has guessed too many wrong codes lately."""
+        wait = self.pair_failures_per_address.wait_s(client)
+        if wait > 0:
+            raise self._refuse(
+                "pair_rate_address",
+                wait,
+                f"too many wrong codes from your network; try again in {wait:.0f} s, or scan "
+                "the QR code instead (it always works)",
+            )
+        wait = self.pair_failures_total.wait_s(TOTAL)
+        if wait > 0:
+            raise self._refuse(
+                "pair_rate_total",
+                wait,
+                f"too many wrong codes lately; try again in {wait:.0f} s, or scan the QR code "
+                "instead (it always works)",
+            )
+
+    def pairing_failed(self, client: str) -> None:
+        self.metrics.refused("pair_bad_code")
+        self.pair_failures_per_address.hit(client)
+        self.pair_failures_total.hit(TOTAL)
+
+    def check_admin(self, client: str) -> None:
+        wait = self.admin_failures_per_address.wait_s(client)
+        if wait > 0:
+            raise self._refuse(
+                "admin_rate", wait, f"too many wrong admin tokens; wait {wait:.0f} s"
+            )
+
+    def admin_failed(self, client: str) -> None:
+        self.metrics.refused("admin_bad_token")
+        self.admin_failures_per_address.hit(client)

@@ -1,0 +1,92 @@
+"""What the coordinator counts, for `/metrics` (Prometheus's text format) and the admin page.
+
+One registry per app (never prometheus_client's global one), so two apps in one process (the
+tests) count apart. Counters count events since this process started; gauges are read from the
+database when scraped.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, get_args
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, generate_latest
+
+# Why a request was refused: one vocabulary for the metrics, the admin page and the docs.
+Refusal = Literal[
+    "join_rate_address",  # joins from one address past joins_per_minute_per_address
+    "join_rate_total",  # joins from everyone past joins_per_minute
+    "anonymous",  # a campaign that takes study links only
+    "queue_full",  # max_queue sessions already waiting
+    "wait_too_long",  # the estimated wait is past max_wait_s
+    "sessions_per_address",  # live sessions from one address past live_sessions_per_address
+    "in_use",  # another browser holds the worker's live session
+    "pair_bad_code",  # a wrong, used or expired pairing code
+    "pair_rate_address",  # wrong codes from one address past pair_failures_per_minute
+    "pair_rate_total",  # wrong codes from everyone past pair_failures_per_minute_total
+    "admin_bad_token",  # a wrong admin token
+    "admin_rate",  # wrong admin tokens from one address past admin_failures_per_minute
+]
+RestartCause = Literal["exited", "hung", "coordinator_restart"]
+
+
+class CoordMetrics:
+    def __init__(self) -> None:
+        self.registry = CollectorRegistry()
+        self.joins = Counter(
+            "crowdteleop_joins", "Joins accepted", ["source"], registry=self.registry
+        )
+        self.refusals = Counter(
+            "crowdteleop_refusals",
+            "Requests refused by a limit",
+            ["reason"],
+            registry=self.registry,
+        )
+        self.restarts = Counter(
+            "crowdteleop_session_restarts",
+            "Sessions given a new teleop server (theirs exited or hung, or we restarted)",
+            ["cause"],
+            registry=self.registry,
+        )
+        self.ended = Counter(
+            "crowdteleop_sessions_ended", "Sessions ended", ["reason"], registry=self.registry
+        )
+        self.episodes = Counter(
+            "crowdteleop_episodes", "Episodes reported", ["outcome"], registry=self.registry
+        )
+        self.launch_failures = Counter(
+            "crowdteleop_launch_failures",
+            "Teleop servers that did not start",
+            registry=self.registry,
+        )
+        self.sessions = Gauge(
+            "crowdteleop_sessions", "Live sessions by state", ["state"], registry=self.registry
+        )
+        self.capacity = Gauge(
+            "crowdteleop_capacity", "Teleop servers allowed at once", registry=self.registry
+        )
+        self.spares = Gauge(
+            "crowdteleop_spare_servers", "Warm spare teleop servers ready", registry=self.registry
+        )
+
+    def refused(self, reason: Refusal) -> None:
+        self.refusals.labels(reason=reason).inc()
+
+    def refusal_counts(self) -> dict[str, int]:
+        """Refusals so far by reason (every reason listed, zeros included), for the admin page."""
+        counts = dict.fromkeys(get_args(Refusal), 0)
+        for metric in self.refusals.collect():
+            for sample in metric.samples:
+                if sample.name.endswith("_total"):
+                    counts[sample.labels["reason"]] = int(sample.value)
+        return counts
+
+    def restarts_by_cause(self) -> dict[str, int]:
+        counts = dict.fromkeys(get_args(RestartCause), 0)
+        for metric in self.restarts.collect():
+            for sample in metric.samples:
+                if sample.name.endswith("_total"):
+                    counts[sample.labels["cause"]] = int(sample.value)
+        return counts
+
+    def exposition(self) -> bytes:
+        return generate_latest(self.registry)

@@ -1,0 +1,103 @@
+"""The `TeleopConfig` each teleop server is started with: a session's, or a warm spare's."""
+
+from __future__ import annotations
+
+import secrets
+from typing import Any
+
+from crowdteleop.coord.config import CoordConfig
+from crowdteleop.coord.security import new_token
+from crowdteleop.coord.session_keys import SessionKeys
+from crowdteleop.coord.spares import SpareKey
+from crowdteleop.coord.tables import Session
+from crowdteleop.teleop.config import TeleopConfig
+from crowdteleop.teleop.messages import Assignment
+
+
+def deep_merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in extra.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = deep_merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def assignment_of(config: TeleopConfig) -> Assignment:
+    """What a warm spare needs to become the server of the session `config` describes."""
+    assert config.admin_token is not None  # the coordinator always gives one
+    return Assignment(
+        session_id=config.session_id,
+        worker_id=config.worker_id,
+        token=config.token,
+        admin_token=config.admin_token,
+        recording_directory=config.recording.directory,
+        report_url=config.report_url,
+        report_token=config.report_token,
+    )
+
+
+class TeleopConfigs:
+    """Builds teleop server configs from the coordinator's settings and secret."""
+
+    def __init__(self, config: CoordConfig, keys: SessionKeys) -> None:
+        self.config, self.keys = config, keys
+
+    def for_session(self, session: Session, report_token: str) -> TeleopConfig:
+        directory = (self.config.data_dir / "episodes" / session.campaign / session.id).resolve()
+        fields = deep_merge(
+            self.config.teleop,
+            {
+                "session_id": session.id,
+                "worker_id": session.worker_id,
+                "token": self.keys.teleop_token(session.id),
+                "admin_token": self.keys.teleop_admin_token(session.id),
+                "sim": {"task": session.task, "robot": session.robot},
+                "control": {"controller": session.controller},
+                "recording": {"directory": str(directory)},
+                "ice_servers": list(self.config.ice_servers),
+                "allowed_origins": [self.config.public_url],
+                "report_url": f"{self.config.report_base_url}/internal/episodes",
+                "report_token": report_token,
+            },
+        )
+        return TeleopConfig.model_validate(fields)
+
+    def spare_keys(self) -> list[SpareKey]:
+        """The (task, robot, controller) combinations the campaigns hand out, round-robin."""
+        keys: list[SpareKey] = []
+        for campaign in self.config.campaigns:
+            tasks, robots, controllers = campaign.tasks, campaign.robots, campaign.controllers
+            for n in range(max(len(tasks), len(robots), len(controllers))):
+                key = (
+                    tasks[n % len(tasks)],
+                    robots[n % len(robots)],
+                    controllers[n % len(controllers)],
+                )
+                if key not in keys:
+                    keys.append(key)
+        return keys
+
+    def for_spare(self, key: SpareKey) -> TeleopConfig:
+        """A spare's config: the simulation of `key`, a placeholder identity (standby)."""
+        task, robot, controller = key
+        spare_id = f"spare-{secrets.token_hex(6)}"
+        fields = deep_merge(
+            self.config.teleop,
+            {
+                "session_id": spare_id,
+                "worker_id": "unassigned",
+                "token": new_token(),
+                "admin_token": new_token(),
+                "standby": True,
+                "sim": {"task": task, "robot": robot},
+                "control": {"controller": controller},
+                "recording": {
+                    "directory": str((self.config.data_dir / "spares" / spare_id).resolve())
+                },
+                "ice_servers": list(self.config.ice_servers),
+                "allowed_origins": [self.config.public_url],
+            },
+        )
+        return TeleopConfig.model_validate(fields)
