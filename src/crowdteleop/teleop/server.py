@@ -12,6 +12,7 @@ import contextlib
 import logging
 import signal
 import threading
+from pathlib import Path
 from typing import Any
 
 from aiohttp import web
@@ -95,12 +96,17 @@ class TeleopServer:
             recover_orphans, self.config.recording.directory / "incoming"
         )
         self.session = await TeleopSession.create(self.config)
-        for path in recovered:  # a crashed session's episode: kept for analysis, as "crash"
+        await self._store_recovered(recovered)
+        self.dispatcher = Dispatcher(self.session, self.telemetry)
+        self._loop_task = asyncio.create_task(self._run_loop(), name="control-loop")
+
+    async def _store_recovered(self, recovered: list[Path]) -> None:
+        """A crashed or hung server's last episode, finalized from its write-ahead log: kept
+        for analysis (outcome "crash"), under other/, never counted as a demonstration."""
+        for path in recovered:
             uri = await asyncio.to_thread(self.session.storage.put, path, f"other/{path.name}")
             path.unlink(missing_ok=True)
             log.warning("recovered an episode a crashed session left: %s", uri)
-        self.dispatcher = Dispatcher(self.session, self.telemetry)
-        self._loop_task = asyncio.create_task(self._run_loop(), name="control-loop")
 
     async def stop(self) -> None:
         if self._loop_task is not None:
@@ -192,6 +198,9 @@ class TeleopServer:
         self.config = config
         self.session.assign(config)
         log.info("assigned to session %s", config.session_id)
+        # The session may be here because its previous server crashed or hung mid-episode.
+        incoming = config.recording.directory / "incoming"
+        await self._store_recovered(await asyncio.to_thread(recover_orphans, incoming))
         return web.json_response({"session_id": config.session_id})
 
     async def handle_protocol(self, _request: web.Request) -> web.Response:
