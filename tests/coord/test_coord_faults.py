@@ -84,7 +84,8 @@ def test_a_frozen_teleop_server_is_given_up_within_10_s_and_its_episode_kept(tmp
         outcome = asyncio.run(scenario())
     assert outcome["given_up_s"] < 10
     assert outcome["view"]["ended_reason"] is None and outcome["view"]["demos_done"] == 0
-    assert any("stopped responding" in n for n in outcome["notices"]), outcome["notices"]
+    if not spares:  # a warm spare takes over between two of the page's heartbeats
+        assert any("stopped responding" in n for n in outcome["notices"]), outcome["notices"]
     session_dir = server.data_dir / "episodes" / "study" / outcome["sid"]
     kept = sorted(session_dir.rglob("other/*.hdf5"))
     assert len(kept) == 1, "the frozen server's episode, recovered by the next one"

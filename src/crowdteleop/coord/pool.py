@@ -55,21 +55,17 @@ class TeleopPool:
         if slot is not None and slot.handle is not None:
             self.stop_later(slot.handle)
 
-    def stop_later(
-        self, handle: TeleopHandle, delay_s: float = 0.0, grace_s: float | None = None
-    ) -> None:
-        """Stop `handle` in the background after `delay_s`, giving it `grace_s` to finish
-        (None: the launcher's default; 0: killed at once, for a hung server)."""
-        task = asyncio.create_task(self._stop(handle, delay_s, grace_s), name="stop-teleop")
+    def stop_later(self, handle: TeleopHandle, delay_s: float = 0.0) -> None:
+        task = asyncio.create_task(self._stop(handle, delay_s), name="stop-teleop")
         self._stopping.add(task)
         task.add_done_callback(self._stopping.discard)
 
-    async def _stop(self, handle: TeleopHandle, delay_s: float, grace_s: float | None) -> None:
+    async def _stop(self, handle: TeleopHandle, delay_s: float) -> None:
         try:
             if delay_s > 0:  # a grace period, cut short when the pool closes
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self._closing.wait(), delay_s)
-            await self.launcher.stop(handle, grace_s=grace_s)
+            await self.launcher.stop(handle)
         except Exception:
             log.exception("stopping teleop server %s failed", handle.url)
 

@@ -237,8 +237,8 @@ class Coordinator:
         return ended
 
     async def restart(self, session_id: str, cause: RestartCause, why: str) -> bool:
-        """The session's server exited or hung: stop it (at once: a hung server gets no
-        grace) and queue the session again at its old place with its count kept, at most
+        """The session's server exited or hung: kill it (a hung server can finish nothing)
+        and queue the session again at its old place with its count kept, at most
         `max_restarts` times; past that it ends as `error`. False if it was not live."""
         async with self.lock:
             session = await self.store.session(session_id)
@@ -246,7 +246,9 @@ class Coordinator:
                 return False
             slot = self.pool.slots.pop(session_id, None)
             if slot is not None and slot.handle is not None:
-                self.pool.stop_later(slot.handle, grace_s=0.0 if cause == "hung" else None)
+                # Gone before the next server looks at the session's write-ahead log: a hung
+                # process still holds its lock on it (an exited one is gone already).
+                await self.pool.launcher.stop(slot.handle, grace_s=0.0)
             if session.restarts >= self.config.max_restarts:
                 restarted = False
                 await self._mark_ended(session_id, "error", error=why)
