@@ -90,8 +90,8 @@ async def join(
         raise ApiError(
             409,
             "in_use",
-            "your session is open in another browser or tab. Continue there, or take it over "
-            "here (the other one will stop).",
+            "Your session is open in another browser. Continue there, or take it over here "
+            "(the other one will stop).",
         ) from exc
     guards.metrics.joins.labels(source=who.source).inc()
     return JoinResponse(

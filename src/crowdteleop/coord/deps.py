@@ -54,8 +54,8 @@ async def worker_for(coordinator: Coordinator, token: str | None) -> Worker:
         raise ApiError(
             401,
             "taken_over",
-            "your session was taken over in another browser; open the study link again to "
-            "take it back",
+            "Your session was taken over in another browser. Open the study link again to "
+            "take it back.",
         )
     if worker is None:
         raise ApiError(401, "unauthorized", "a valid worker token is required (from /api/join)")

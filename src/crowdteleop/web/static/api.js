@@ -18,10 +18,13 @@ export async function call(path, { method = "GET", token, body } = {}) {
   return payload;
 }
 
+// The worker's join, kept per browser (localStorage: every tab of it), not per tab: its token
+// is how a rejoin proves it is the same browser, so a second tab or a reload gets the same
+// session, while another browser with the same study id must take it over explicitly.
 export const worker = {
   load() {
-    const raw = sessionStorage.getItem("crowdteleop.worker");
+    const raw = localStorage.getItem("crowdteleop.worker");
     return raw ? JSON.parse(raw) : null;
   },
-  save(joined) { sessionStorage.setItem("crowdteleop.worker", JSON.stringify(joined)); },
+  save(joined) { localStorage.setItem("crowdteleop.worker", JSON.stringify(joined)); },
 };

@@ -87,6 +87,7 @@ function showView(view) {
     page.ready = false;
     if (page.connection) page.connection.close();
     page.connection = null;
+    $("connection").textContent = "waiting for a new robot";
     if (view.notice) banner("info", view.notice);
   }
 }
@@ -123,6 +124,9 @@ async function heartbeat() {
       page.ended = true;
       banner("error", error.message);
       if (page.connection) page.connection.close();
+      $("connection").textContent = "closed";
+      $("pair-code").textContent = "–";  // its phones were unpaired with it
+      $("qr").removeAttribute("src");
       return;
     }
     banner("error", `Lost contact with the server: ${error.message}`);
