@@ -183,3 +183,30 @@ def test_wrong_admin_tokens_are_limited_and_weak_admin_tokens_refused(tmp_path):
         with pytest.raises(ValueError, match="too weak"):
             CoordConfig(admin_token=weak)
     CoordConfig(admin_token="Xk3_v9Qm-2LpZr7TbW1cNf8HsJd4GyUe")  # 32 random URL-safe characters
+
+
+def test_forged_forwarded_for_does_not_multiply_pairing_guesses(tmp_path):
+    config = coord_config(tmp_path, pair_failures_per_minute=10, pair_failures_per_minute_total=25)
+    with serve(config) as url, httpx.Client(base_url=url, timeout=30) as http:
+        guesses = [
+            http.post(
+                "/api/pair", json={"code": "ZZZZZZ"}, headers=behind(f"198.51.100.{n}")
+            ).status_code
+            for n in range(1, 31)
+        ]
+        assert guesses == [404] * 10 + [429] * 20, "one client, however many addresses it claims"
+        assert metric(http, "pair_rate_address") == 20
+    # Behind a trusted proxy each real client is counted apart, and all of them together meet
+    # the budget of everyone.
+    config = coord_config(
+        tmp_path / "proxy", pair_failures_per_minute=10, pair_failures_per_minute_total=25, **PROXY
+    )
+    with serve(config) as url, httpx.Client(base_url=url, timeout=30) as http:
+        spread = [
+            http.post(
+                "/api/pair", json={"code": "ZZZZZZ"}, headers=behind(f"198.51.100.{n % 5}")
+            ).status_code
+            for n in range(40)
+        ]
+        assert spread[:25] == [404] * 25 and set(spread[25:]) == {429}
+        assert metric(http, "pair_rate_total") == 15

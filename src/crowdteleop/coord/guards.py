@@ -49,43 +49,47 @@ class Guards:
         """The address (IPv6: /64) this request is counted under."""
         return client_key(connection, self.trust)
 
-    def _refuse(self, reason: Refusal, wait_s: float, message: str) -> ApiError:
-        self.metrics.refused(reason)
-        return ApiError(429, "rate_limited", message, headers=retry_after(wait_s))
+    def _check(self, limiter: WindowLimiter, key: str, reason: Refusal, message: str) -> None:
+        """Raise 429 (counted as `reason`) while `key` is over `limiter`'s limit; `message`
+        gets the wait in seconds in place of `{wait}`."""
+        wait = limiter.wait_s(key)
+        if wait > 0:
+            self.metrics.refused(reason)
+            text = message.format(wait=f"{wait:.0f}")
+            raise ApiError(429, "rate_limited", text, headers=retry_after(wait))
 
     def admit_join(self, client: str) -> None:
         """Count one join from `client`, or raise 429 past either join limit."""
-        wait = self.joins_per_address.wait_s(client)
-        if wait > 0:
-            raise self._refuse(
-                "join_rate_address", wait, f"too many joins from your network; wait {wait:.0f} s"
-            )
-        wait = self.joins_total.wait_s(TOTAL)
-        if wait > 0:
-            raise self._refuse(
-                "join_rate_total", wait, f"the study is busy with joins; wait {wait:.0f} s"
-            )
+        self._check(
+            self.joins_per_address,
+            client,
+            "join_rate_address",
+            "Too many joins from your network; please wait {wait} s.",
+        )
+        self._check(
+            self.joins_total,
+            TOTAL,
+            "join_rate_total",
+            "The study is busy with joins; please wait {wait} s.",
+        )
         self.joins_per_address.hit(client)
         self.joins_total.hit(TOTAL)
 
     def check_pairing(self, client: str) -> None:
         """Raise 429 if `client` (or everyone) has guessed too many wrong codes lately."""
-        wait = self.pair_failures_per_address.wait_s(client)
-        if wait > 0:
-            raise self._refuse(
-                "pair_rate_address",
-                wait,
-                f"too many wrong codes from your network; try again in {wait:.0f} s, or scan "
-                "the QR code instead (it always works)",
-            )
-        wait = self.pair_failures_total.wait_s(TOTAL)
-        if wait > 0:
-            raise self._refuse(
-                "pair_rate_total",
-                wait,
-                f"too many wrong codes lately; try again in {wait:.0f} s, or scan the QR code "
-                "instead (it always works)",
-            )
+        scan = "or scan the QR code instead (it always works)."
+        self._check(
+            self.pair_failures_per_address,
+            client,
+            "pair_rate_address",
+            "Too many wrong codes from your network: try again in {wait} s, " + scan,
+        )
+        self._check(
+            self.pair_failures_total,
+            TOTAL,
+            "pair_rate_total",
+            "Too many wrong codes lately: try again in {wait} s, " + scan,
+        )
 
     def pairing_failed(self, client: str) -> None:
         self.metrics.refused("pair_bad_code")
@@ -93,11 +97,12 @@ class Guards:
         self.pair_failures_total.hit(TOTAL)
 
     def check_admin(self, client: str) -> None:
-        wait = self.admin_failures_per_address.wait_s(client)
-        if wait > 0:
-            raise self._refuse(
-                "admin_rate", wait, f"too many wrong admin tokens; wait {wait:.0f} s"
-            )
+        self._check(
+            self.admin_failures_per_address,
+            client,
+            "admin_rate",
+            "Too many wrong admin tokens; wait {wait} s.",
+        )
 
     def admin_failed(self, client: str) -> None:
         self.metrics.refused("admin_bad_token")

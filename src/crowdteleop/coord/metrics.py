@@ -73,20 +73,20 @@ class CoordMetrics:
 
     def refusal_counts(self) -> dict[str, int]:
         """Refusals so far by reason (every reason listed, zeros included), for the admin page."""
-        counts = dict.fromkeys(get_args(Refusal), 0)
-        for metric in self.refusals.collect():
-            for sample in metric.samples:
-                if sample.name.endswith("_total"):
-                    counts[sample.labels["reason"]] = int(sample.value)
-        return counts
+        return _by_label(self.refusals, "reason", get_args(Refusal))
 
     def restarts_by_cause(self) -> dict[str, int]:
-        counts = dict.fromkeys(get_args(RestartCause), 0)
-        for metric in self.restarts.collect():
-            for sample in metric.samples:
-                if sample.name.endswith("_total"):
-                    counts[sample.labels["cause"]] = int(sample.value)
-        return counts
+        return _by_label(self.restarts, "cause", get_args(RestartCause))
 
     def exposition(self) -> bytes:
         return generate_latest(self.registry)
+
+
+def _by_label(counter: Counter, label: str, names: tuple[str, ...]) -> dict[str, int]:
+    """A labelled counter's totals by `label`, every name in `names` listed."""
+    counts = dict.fromkeys(names, 0)
+    for metric in counter.collect():
+        for sample in metric.samples:
+            if sample.name.endswith("_total"):
+                counts[sample.labels[label]] = int(sample.value)
+    return counts
