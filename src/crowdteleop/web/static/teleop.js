@@ -292,11 +292,12 @@ async function robotLoop() {
       statusTicker();
       pairPhone();
       wired = true;
+      clearBanner();
     } else {
       page.connection.messages.device = page.device.kind;
+      banner("info", "You are connected to a new robot. Your saved demonstrations still count.");
     }
     page.ready = true;
-    clearBanner();
     while (page.ready && !page.ended) await new Promise((resolve) => setTimeout(resolve, 500));
   }
 }
