@@ -15,6 +15,7 @@ if [ "$profile" = "test" ]; then
   packages+=(
     postgresql   # the coordination server's database tests run against a real PostgreSQL
     chromium     # the web pages' end-to-end tests (Playwright drives /usr/bin/chromium)
+    coturn       # TURN: a session relayed through a real TURN server (relay-only ICE)
   )
   # The pages' JS unit tests run on node's own test runner; any node >= 18 will do.
   command -v node >/dev/null || packages+=(nodejs)

@@ -18,7 +18,7 @@ import numpy.typing as npt
 from aiortc import (
     MediaStreamTrack,
     RTCConfiguration,
-    RTCIceServer,
+    RTCIceTransportPolicy,
     RTCPeerConnection,
     RTCSessionDescription,
 )
@@ -27,7 +27,9 @@ from av import VideoFrame
 
 from crowdteleop.client.latency import FrameMatcher, LatencyTracker
 from crowdteleop.client.receiver import complete_frames_on_marker
+from crowdteleop.teleop.ice import IceServer
 from crowdteleop.teleop.messages import OfferAnswer, OfferRequest
+from crowdteleop.teleop.peering import rtc_ice_servers
 from crowdteleop.teleop.protocol import (
     PROTOCOL_VERSION,
     EpisodeEnded,
@@ -90,7 +92,8 @@ class TeleopClient:
         device: DeviceKind = "bot",
         admin_token: str | None = None,
         video: bool = True,
-        ice_servers: Sequence[str] = (),
+        ice_servers: Sequence[IceServer | str] = (),
+        relay_only: bool = False,
         on_privileged: Callable[[PrivilegedState], None] | None = None,
     ) -> None:
         self.base_url = base_url.rstrip("/")
@@ -102,8 +105,10 @@ class TeleopClient:
         self.latency = LatencyTracker()
         self.on_privileged = on_privileged
         complete_frames_on_marker()  # frames reach us when a browser would see them
-        ice = [RTCIceServer(urls=url) for url in ice_servers]
-        self.pc = RTCPeerConnection(RTCConfiguration(iceServers=ice))
+        ice = rtc_ice_servers([IceServer.model_validate(server) for server in ice_servers])
+        # relay_only: only TURN candidates, as a browser with iceTransportPolicy "relay".
+        policy = RTCIceTransportPolicy.RELAY if relay_only else RTCIceTransportPolicy.ALL
+        self.pc = RTCPeerConnection(RTCConfiguration(iceServers=ice, iceTransportPolicy=policy))
         self._channels: dict[str, Any] = {}
         self._seq = 0
         self._reported = 0

@@ -78,7 +78,8 @@ async def phone_session(session: PhoneSession, coordinator: CoordinatorDep) -> P
         task=session.task,
         instruction=get_task(session.task).instruction,
         ended_reason=session.ended_reason,
-        ice_servers=list(coordinator.config.ice_servers),
+        ice_servers=coordinator.configs.ice_servers(f"{session.id}-phone"),
+        ice_transport_policy=coordinator.config.ice_transport_policy,
     )
 
 

@@ -10,6 +10,8 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from crowdteleop.coord.campaign import CampaignConfig, read_structured
 from crowdteleop.coord.clients import ProxyTrust
 from crowdteleop.coord.security import ADMIN_TOKEN_MIN_BITS, estimated_entropy_bits
+from crowdteleop.coord.turn import TurnConfig
+from crowdteleop.teleop.ice import IceServer, IceTransportPolicy
 
 
 class AdmissionConfig(BaseModel):
@@ -59,7 +61,17 @@ class CoordConfig(BaseModel):
     internal_url: str | None = Field(
         None, description="base URL teleop servers report to; default: public_url"
     )
-    ice_servers: list[str] = Field(default_factory=list, description="STUN/TURN URLs")
+    ice_servers: list[IceServer] = Field(
+        default_factory=list, description="STUN/TURN servers for everyone (URLs or objects)"
+    )
+    turn: TurnConfig | None = Field(
+        None, description="a TURN server taking REST API credentials: one set per session"
+    )
+    ice_transport_policy: IceTransportPolicy = Field(
+        "all",
+        description="what the pages may connect by: 'relay' allows TURN only (hides the "
+        "workers' and servers' addresses from each other)",
+    )
     heartbeat_timeout_s: float = Field(30.0, gt=0, description="silent this long: abandoned")
     reaper_interval_s: float = Field(1.0, gt=0)
     teleop_start_timeout_s: float = Field(120.0, gt=0)

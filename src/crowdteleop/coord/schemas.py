@@ -6,6 +6,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from crowdteleop.teleop.ice import IceServer, IceTransportPolicy
 from crowdteleop.vocab import Outcome, WorkerDevice
 
 SessionState = Literal["queued", "starting", "ready", "ended"]
@@ -82,7 +83,8 @@ class SessionView(BaseModel):
     demos_required: int
     completion_code: str | None
     redirect_url: str | None
-    ice_servers: list[str]
+    ice_servers: list[IceServer] = Field(description="with this session's TURN credentials")
+    ice_transport_policy: IceTransportPolicy = "all"
     ended_reason: EndedReason | None
     notice: str | None = Field(
         None, description="why a running session waits again (its robot crashed or hung)"
@@ -127,7 +129,8 @@ class PhoneSessionView(BaseModel):
     task: str
     instruction: str
     ended_reason: EndedReason | None
-    ice_servers: list[str]
+    ice_servers: list[IceServer]
+    ice_transport_policy: IceTransportPolicy = "all"
 
 
 class EpisodeAck(BaseModel):

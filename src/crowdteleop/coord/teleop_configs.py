@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import secrets
+import time
 from typing import Any
 
 from crowdteleop.coord.config import CoordConfig
@@ -10,7 +11,9 @@ from crowdteleop.coord.security import new_token
 from crowdteleop.coord.session_keys import SessionKeys
 from crowdteleop.coord.spares import SpareKey
 from crowdteleop.coord.tables import Session
+from crowdteleop.coord.turn import turn_credentials
 from crowdteleop.teleop.config import TeleopConfig
+from crowdteleop.teleop.ice import IceServer
 from crowdteleop.teleop.messages import Assignment
 
 
@@ -35,6 +38,7 @@ def assignment_of(config: TeleopConfig) -> Assignment:
         recording_directory=config.recording.directory,
         report_url=config.report_url,
         report_token=config.report_token,
+        ice_servers=list(config.ice_servers),
     )
 
 
@@ -43,6 +47,17 @@ class TeleopConfigs:
 
     def __init__(self, config: CoordConfig, keys: SessionKeys) -> None:
         self.config, self.keys = config, keys
+
+    def ice_servers(self, name: str) -> list[IceServer]:
+        """Everyone's STUN/TURN servers, and TURN credentials of `name`'s own (a session's,
+        a page's, a teleop server's), fresh now."""
+        servers = list(self.config.ice_servers)
+        if self.config.turn is not None:
+            servers.append(turn_credentials(self.config.turn, name, time.time()))
+        return servers
+
+    def ice_servers_dump(self, name: str) -> list[dict[str, Any]]:
+        return [server.model_dump() for server in self.ice_servers(name)]
 
     def for_session(self, session: Session, report_token: str) -> TeleopConfig:
         directory = (self.config.data_dir / "episodes" / session.campaign / session.id).resolve()
@@ -56,7 +71,7 @@ class TeleopConfigs:
                 "sim": {"task": session.task, "robot": session.robot},
                 "control": {"controller": session.controller},
                 "recording": {"directory": str(directory)},
-                "ice_servers": list(self.config.ice_servers),
+                "ice_servers": self.ice_servers_dump(session.id),
                 "allowed_origins": [self.config.public_url],
                 "report_url": f"{self.config.report_base_url}/internal/episodes",
                 "report_token": report_token,
@@ -96,7 +111,7 @@ class TeleopConfigs:
                 "recording": {
                     "directory": str((self.config.data_dir / "spares" / spare_id).resolve())
                 },
-                "ice_servers": list(self.config.ice_servers),
+                "ice_servers": self.ice_servers_dump(spare_id),
                 "allowed_origins": [self.config.public_url],
             },
         )

@@ -25,6 +25,7 @@ def assigned_config(config: TeleopConfig, assignment: Assignment) -> TeleopConfi
             "recording": recording.model_dump(),
             "report_url": assignment.report_url,
             "report_token": assignment.report_token,
+            "ice_servers": [s.model_dump() for s in assignment.ice_servers],
             "standby": False,
         }
     )

@@ -12,6 +12,7 @@ from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.recording.stores import StorageConfig, open_storage
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.tasks import get_task
+from crowdteleop.teleop.ice import IceServer
 from crowdteleop.vocab import CONTROLLERS, action_mode_for
 
 Codec = Literal["vp8", "h264"]
@@ -126,8 +127,9 @@ class TeleopConfig(BaseModel):
     video: VideoConfig = VideoConfig()
     limits: LimitsConfig = LimitsConfig()
     recording: RecordingConfig = RecordingConfig()
-    ice_servers: list[str] = Field(
-        default_factory=list, description="STUN/TURN URLs; empty on loopback"
+    ice_servers: list[IceServer] = Field(
+        default_factory=list,
+        description="STUN/TURN servers (a bare URL, or urls/username/credential); none on loopback",
     )
     report_url: str | None = Field(
         None, description="the coordination server's URL for episode reports (POST JSON)"

@@ -13,6 +13,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from crowdteleop.teleop.ice import IceServer
 from crowdteleop.teleop.protocol import PeerRole
 from crowdteleop.vocab import DeviceKind, Outcome
 
@@ -86,6 +87,9 @@ class Assignment(BaseModel):
     recording_directory: Path
     report_url: str | None = None
     report_token: str | None = Field(None, min_length=8, max_length=256)
+    ice_servers: list[IceServer] = Field(
+        default_factory=list, description="the session's (fresh TURN credentials among them)"
+    )
 
 
 class EpisodeReport(BaseModel):

@@ -23,6 +23,7 @@ from pydantic import BaseModel
 
 from crowdteleop.teleop.config import LimitsConfig, VideoConfig
 from crowdteleop.teleop.guard import InboundGuard
+from crowdteleop.teleop.ice import IceServer
 from crowdteleop.teleop.messages import OfferRequest
 from crowdteleop.teleop.peers import Peer
 from crowdteleop.teleop.remb import RembTap
@@ -62,7 +63,7 @@ class PeerSet:
 
     def __init__(
         self,
-        ice_servers: list[str],
+        ice_servers: list[IceServer],
         limits: LimitsConfig,
         video: VideoConfig,
         frames: FrameSource,
@@ -70,7 +71,7 @@ class PeerSet:
         on_events_open: PeerCallback,
         on_left: PeerCallback,
     ) -> None:
-        self._ice_servers = ice_servers
+        self.ice_servers = ice_servers  # a warm spare gets its session's on assignment
         self._limits = limits
         self._video = video
         self._frames = frames
@@ -109,8 +110,7 @@ class PeerSet:
 
     async def connect(self, offer: OfferRequest) -> tuple[RTCSessionDescription, str]:
         """Answer `offer`; the new peer's id comes back with the answer."""
-        ice = [RTCIceServer(urls=url) for url in self._ice_servers]
-        pc = RTCPeerConnection(RTCConfiguration(iceServers=ice))
+        pc = RTCPeerConnection(RTCConfiguration(iceServers=rtc_ice_servers(self.ice_servers)))
         limits = self._limits
         peer = Peer(
             peer_id=secrets.token_hex(6),
@@ -261,6 +261,13 @@ class PeerSet:
 
             if channel.readyState == "open":
                 self._on_events_open(peer)
+
+
+def rtc_ice_servers(servers: list[IceServer]) -> list[RTCIceServer]:
+    """aiortc's form of our `IceServer`s (TURN credentials included)."""
+    return [
+        RTCIceServer(urls=s.urls, username=s.username, credential=s.credential) for s in servers
+    ]
 
 
 def without_mdns_candidates(sdp: str) -> str:

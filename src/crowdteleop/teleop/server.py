@@ -197,6 +197,7 @@ class TeleopServer:
             return self._http_error(400, "invalid_assignment", str(exc.errors()[0]["msg"]))
         self.config = config
         self.session.assign(config)
+        self.peers.ice_servers = config.ice_servers
         log.info("assigned to session %s", config.session_id)
         # The session may be here because its previous server crashed or hung mid-episode.
         incoming = config.recording.directory / "incoming"

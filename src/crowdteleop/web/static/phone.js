@@ -170,7 +170,8 @@ async function pair(code, key) {
   if (session.state !== "ready") throw new Error("your robot is not ready yet: try again in a moment");
   const connection = new TeleopConnection({
     protocol: phone.protocol, offerUrl: "/api/phone/offer", authorization: `Bearer ${phone.token}`,
-    device: "phone", iceServers: session.ice_servers, video: false,
+    device: "phone", iceServers: session.ice_servers, iceTransportPolicy: session.ice_transport_policy,
+    video: false,
   });
   phone.connection = connection;
   await connection.connect();

@@ -9,14 +9,20 @@ const FPS_WINDOW_FRAMES = 60;
 
 export class TeleopConnection extends EventTarget {
   // `protocol` is the loaded Protocol: every message in and out is checked against its schema.
-  constructor({ protocol, offerUrl, authorization, device, iceServers = [], video = true }) {
+  // iceServers: the coordinator's RTCIceServer objects (urls, and for TURN username and
+  // credential); a bare URL string is taken as a server without credentials.
+  // iceTransportPolicy: "relay" connects through TURN only.
+  constructor({ protocol, offerUrl, authorization, device, iceServers = [], iceTransportPolicy = "all", video = true }) {
     super();
     this.protocol = protocol;
     this.offerUrl = offerUrl;
     this.authorization = authorization;
     this.messages = new MessageFactory(device);
     this.video = video;
-    this.pc = new RTCPeerConnection({ iceServers: iceServers.map((urls) => ({ urls })) });
+    this.pc = new RTCPeerConnection({
+      iceServers: iceServers.map((server) => (typeof server === "string" ? { urls: server } : server)),
+      iceTransportPolicy,
+    });
     this.control = null;
     this.events = null;
     this.latencyTimer = null;

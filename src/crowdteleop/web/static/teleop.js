@@ -308,6 +308,7 @@ async function connectRobot() {
   const connection = new TeleopConnection({
     protocol: page.protocol, offerUrl: `/api/sessions/${page.view.session_id}/offer`,
     authorization: `Bearer ${page.token}`, device: "keyboard", iceServers: page.view.ice_servers,
+    iceTransportPolicy: page.view.ice_transport_policy,
   });
   page.connection = connection;
   connection.addEventListener("track", ({ detail }) => { $("video").srcObject = detail.stream; });
