@@ -26,6 +26,7 @@ class PhoneState {
     this.haptics = 0;  // haptic events received
     this.xr = null;  // the WebXR session, while AR tracking runs
     this.ready = false;
+    this.secure = window.isSecureContext;  // sensors and WebXR need https (or localhost)
     Object.seal(this);
   }
 }
@@ -57,13 +58,30 @@ function onOrientation(event) {
   $("motion").textContent = "orientation sensors + drag";
 }
 
+// Over plain http on a LAN a browser hides the motion sensors and WebXR without a word; say so,
+// and what to do. Pairing and the drag pads still work.
+const INSECURE = "This page is not secure (http://), so your phone's motion sensors and AR "
+  + "tracking are switched off: only the drag pads work. Open the phone link over https:// "
+  + "(the study's organiser starts the server with --https), or scan the QR code again.";
+
 async function enableOrientation() {
+  if (!phone.secure) {
+    banner("error", INSECURE);
+    $("motion").textContent = "drag pads only (not https)";
+    return;
+  }
   const needsPermission = typeof DeviceOrientationEvent !== "undefined"
     && typeof DeviceOrientationEvent.requestPermission === "function";
   if (needsPermission) {  // iOS asks the user, and only from a tap
     $("motion-permission").hidden = false;
     $("motion-permission").onclick = async () => {
-      const answer = await DeviceOrientationEvent.requestPermission();
+      let answer;
+      try {
+        answer = await DeviceOrientationEvent.requestPermission();
+      } catch (error) {  // e.g. not from a tap, or an insecure page
+        banner("error", `Motion sensors could not be turned on (${error.message}). Tap the button again, or use the drag pads.`);
+        return;
+      }
       if (answer === "granted") {
         window.addEventListener("deviceorientation", onOrientation);
         $("motion-permission").hidden = true;
@@ -75,6 +93,7 @@ async function enableOrientation() {
 }
 
 async function enableXR() {
+  if (!phone.secure) return;  // WebXR exists only in a secure context
   if (!navigator.xr || !(await navigator.xr.isSessionSupported("immersive-ar").catch(() => false))) return;
   $("start-ar").hidden = false;
   $("start-ar").onclick = async () => {
@@ -188,6 +207,7 @@ async function pair(code, key) {
 async function main() {
   if (!("RTCPeerConnection" in window)) { banner("error", "This browser has no WebRTC: use Chrome or Safari."); return; }
   try { phone.protocol = await Protocol.load(); } catch (error) { banner("error", error.message); return; }
+  if (!phone.secure) banner("error", INSECURE);
   const submit = async (code, key) => {
     try { await pair(code, key); }
     catch (error) { banner("error", error.status === 404 ? "That code is wrong or has expired: get a new one on your computer." : error.message); }
