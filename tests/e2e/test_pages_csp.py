@@ -46,12 +46,9 @@ def test_every_page_works_under_the_policy_and_injected_script_is_refused(tmp_pa
             # The join page's module runs; agreeing joins (a fetch) and moves on.
             page = await context.new_page()
             await page.goto(f"{url}/join?PROLIFIC_PID=csp-worker&STUDY_ID=s&SESSION_ID=v")
-            await wait_js(
-                page,
-                "document.getElementById('instructions').textContent"
-                ".startsWith('Read the consent')",
-                20,
-            )
+            # It loads the study's figures (a fetch) before anyone agrees.
+            await wait_js(page, "document.getElementById('required').textContent !== '–'", 20)
+            seen["join_text"] = await page.inner_text("main")
             seen["join"] = await _violations(page)
             await page.check("#consent")
             await page.click("#agree")
@@ -106,6 +103,8 @@ def test_every_page_works_under_the_policy_and_injected_script_is_refused(tmp_pa
         seen = asyncio.run(visit(url))
     for name in ("join", "teleop", "phone", "admin"):
         assert seen[name] == [], (name, seen[name])
+    # The join page says what the study asks before anyone agrees (its campaign's figures).
+    assert "Needed: 3 successful demonstrations, at most 30 min" in seen["join_text"]
     assert seen["phone_offers"] == ["phone"], "the phone page's offer reached its server"
     assert seen["qr"] > 0, "the QR code (an image of our own origin) loads"
     assert not seen["injected"], "script-src 'self' refuses an inline event handler"

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Body, Query, Request
+from fastapi import APIRouter, Body, Path, Query, Request
 
-from crowdteleop.coord.campaign import CampaignConfig
+from crowdteleop.coord.campaign import NAME_PATTERN, CampaignConfig
 from crowdteleop.coord.deps import (
     ClientDep,
     CoordinatorDep,
@@ -50,6 +50,22 @@ def campaign_view(campaign: CampaignConfig) -> CampaignView:
         demos_required=campaign.demos_required,
         time_limit_s=campaign.time_limit_s,
     )
+
+
+@router.get("/campaigns/{name}", response_model=CampaignView)
+async def campaign(
+    name: Annotated[str, Path(pattern=NAME_PATTERN)], coordinator: CoordinatorDep
+) -> CampaignView:
+    """What the join page shows before anyone agrees: the task, how many demonstrations and
+    how long it takes. `default` is the campaign a link without `campaign=` joins."""
+    chosen = coordinator.config.campaign(name)
+    if chosen is None and name == "default":
+        chosen = coordinator.config.default_campaign
+    if chosen is None:
+        raise ApiError(404, "unknown_campaign", f"no campaign named {name!r}")
+    typical = await coordinator.waits.mean_session_s(-1.0)
+    view = campaign_view(chosen)
+    return view.model_copy(update={"typical_session_s": round(typical) if typical > 0 else None})
 
 
 @router.post("/join", response_model=JoinResponse)

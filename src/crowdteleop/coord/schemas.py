@@ -58,6 +58,9 @@ class CampaignView(BaseModel):
     interfaces: list[WorkerDevice]
     demos_required: int
     time_limit_s: float
+    typical_session_s: float | None = Field(
+        None, description="how long sessions have taken (mean of recent ones); null before any"
+    )
 
 
 class JoinResponse(BaseModel):
