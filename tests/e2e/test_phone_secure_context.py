@@ -49,6 +49,6 @@ def test_the_phone_page_says_when_it_is_not_secure_and_what_to_do(tmp_path):
                 }
 
         outcome = asyncio.run(visit())
-    assert outcome["insecure"] is False and "https://" in outcome["told"]
+    assert outcome["insecure"] is False and "over HTTPS" in outcome["told"]
     assert "--https" in outcome["told"], "it says what the organiser has to do"
     assert outcome["secure"] is True and "not secure" not in outcome["banner"]

@@ -60,9 +60,10 @@ function onOrientation(event) {
 
 // Over plain http on a LAN a browser hides the motion sensors and WebXR without a word; say so,
 // and what to do. Pairing and the drag pads still work.
-const INSECURE = "This page is not secure (http://), so your phone's motion sensors and AR "
-  + "tracking are switched off: only the drag pads work. Open the phone link over https:// "
-  + "(the study's organiser starts the server with --https), or scan the QR code again.";
+const INSECURE = "This page is not secure (its address starts with http, not https), so your "
+  + "phone's motion sensors and AR tracking are switched off: only the drag pads work. Open the "
+  + "phone link over HTTPS (the study's organiser starts the server with --https), or scan the "
+  + "QR code again.";
 
 async function enableOrientation() {
   if (!phone.secure) {
