@@ -119,9 +119,9 @@ def test_rejoining_with_the_same_external_id_is_the_same_worker(database_url):
             other, _, _ = await store.join("default", "mturk", "PID1")  # another platform
             anon1, _, _ = await store.join("default", "anonymous", None)
             anon2, _, _ = await store.join("default", "anonymous", None)
-            by_old = await store.worker_by_token(token1)
-            by_new = await store.worker_by_token(token2)
-            nobody = await store.worker_by_token("not-a-token")
+            by_old, _ = await store.token_holder(token1)
+            by_new, _ = await store.token_holder(token2)
+            nobody, _ = await store.token_holder("not-a-token")
             return first, again, other, anon1, anon2, by_old, by_new, nobody, created1, created2
         finally:
             await store.close()

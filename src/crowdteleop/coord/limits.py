@@ -76,10 +76,6 @@ class WindowLimiter:
             self.hit(key, now)
         return wait
 
-    @property
-    def keys(self) -> int:
-        return len(self._events)
-
 
 def retry_after(wait_s: float) -> dict[str, str]:
     """The `Retry-After` header for a refusal that lasts `wait_s`."""

@@ -133,27 +133,28 @@ class Coordinator:
         caller holds the lock, so the counts cannot change under it)."""
         limits = self.config.admission
         if client_tag is not None:
-            live = await self.store.live_sessions_of_client(client_tag)
-            if live >= limits.live_sessions_per_address:
+            open_here = await self.store.live_sessions_of_client(client_tag)
+            if open_here >= limits.live_sessions_per_address:
                 self.metrics.refused("sessions_per_address")
                 raise ApiError(
                     429,
                     "too_many_sessions",
-                    f"{live} sessions are already open from your network; finish or close "
+                    f"{open_here} sessions are already open from your network; finish or close "
                     "one first",
                 )
         if self.pool.free > 0:
             return  # admitted at once: no queue to join
-        positions = await self.waits.positions()
-        if len(positions) >= limits.max_queue:
+        live = await self.store.live_sessions()
+        queued = sum(s.state == "queued" for s in live)
+        if queued >= limits.max_queue:
             self.metrics.refused("queue_full")
             raise ApiError(
                 503,
                 "queue_full",
-                f"the queue is full ({len(positions)} waiting); please try again later",
+                f"the queue is full ({queued} waiting); please try again later",
                 headers=retry_after(60),
             )
-        wait_s = await self.waits.next_wait_s(len(positions))
+        wait_s = await self.waits.next_wait_s(live, queued)
         if wait_s > limits.max_wait_s:
             self.metrics.refused("wait_too_long")
             raise ApiError(

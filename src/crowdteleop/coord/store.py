@@ -140,11 +140,6 @@ class Store:
                 return None, False
             return found[0], found[1] is not None
 
-    async def worker_by_token(self, token: str) -> Worker | None:
-        """The worker of a valid (not revoked) token."""
-        worker, revoked = await self.token_holder(token)
-        return None if revoked else worker
-
     async def worker(self, worker_id: str) -> Worker | None:
         async with self.transactions() as db:
             return await db.get(Worker, worker_id)

@@ -39,9 +39,9 @@ class WaitEstimates:
         etas = await self._etas(live, len(queued))
         return {s.id: (i + 1, eta) for i, (s, eta) in enumerate(zip(queued, etas, strict=True))}
 
-    async def next_wait_s(self, queued: int) -> float:
-        """The estimated wait of a session joining behind `queued` others."""
-        return (await self._etas(await self.store.live_sessions(), queued + 1))[-1]
+    async def next_wait_s(self, live: list[Session], queued: int) -> float:
+        """The estimated wait of a session joining behind the `queued` of `live` sessions."""
+        return (await self._etas(live, queued + 1))[-1]
 
     async def _etas(self, live: list[Session], waiting: int) -> list[float]:
         mean = await self.mean_session_s(self.config.default_campaign.time_limit_s)
