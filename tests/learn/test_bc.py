@@ -172,6 +172,10 @@ def test_the_cli_trains_and_evaluates(lift_dataset, tmp_path):
     written = json.loads((output / "eval.json").read_text())
     assert written["results"]["ours"]["episodes"] == 1
     assert "ours" in result.output
+    import av
+
+    with av.open(str(output / "eval.mp4")) as video:  # the rollout, filmed in ours
+        assert sum(1 for _ in video.decode(video=0)) == 3
 
 
 def test_a_dataset_without_observations_is_refused_with_what_to_do(lift_dataset, tmp_path):

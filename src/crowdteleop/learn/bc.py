@@ -12,7 +12,7 @@ from __future__ import annotations
 import csv
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +22,13 @@ import torch
 
 from crowdteleop.learn.actions import from_learned
 from crowdteleop.learn.config import BCConfig
-from crowdteleop.learn.data import DemoArrays, LearnData, SequenceSampler, load_learn_data
+from crowdteleop.learn.data import (
+    DemoArrays,
+    LearnData,
+    LearnDataError,
+    SequenceSampler,
+    load_learn_data,
+)
 from crowdteleop.learn.model import RNNPolicyNet, RNNState
 
 CHECKPOINT_FORMAT = "crowdteleop-bc-rnn"
@@ -81,16 +87,26 @@ def train_bc(
     config: BCConfig,
     on_epoch: Callable[[EpochLog], None] | None = None,
     threads: int = 1,
+    resume: bool = False,
 ) -> TrainReport:
     """Train on the dataset's ``config.train_filter`` demos, log every epoch to
     ``output/log.csv`` and write ``output/model.pt`` (plus ``model_best_valid.pt`` when there
-    are valid demos, and ``epoch_<n>.pt`` every ``save_every`` epochs)."""
+    are valid demos, and ``epoch_<n>.pt`` every ``save_every`` epochs). ``resume.pt`` holds
+    what continuing needs (weights, optimizer, random states) after every epoch: with
+    ``resume`` a run continues from it to the same weights an unbroken run reaches."""
     torch.set_num_threads(threads)
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
     data = load_learn_data(
         dataset, config.obs_keys, config.train_filter, config.valid_filter, config.actions
     )
+    if config.max_demos is not None:
+        if config.max_demos > len(data.train):
+            raise LearnDataError(
+                f"{dataset}: {config.max_demos} training demos were asked for; "
+                f"mask/{config.train_filter} lists {len(data.train)}"
+            )
+        data = replace(data, train=data.train[: config.max_demos])
     norm = Normalisation.fit(data.train, config.normalize_obs)
     train = SequenceSampler([norm.demo(d) for d in data.train], config.seq_length)
     valid = SequenceSampler([norm.demo(d) for d in data.valid], config.seq_length)
@@ -101,12 +117,17 @@ def train_bc(
     output.mkdir(parents=True, exist_ok=True)
     log_path = output / "log.csv"
     report = TrainReport(output / "model.pt", log_path, [], 0.0, len(data.train), len(data.valid))
-    started = time.perf_counter()
-    best_valid = float("inf")
+    progress = _Progress()
+    if resume and (output / RESUME_FILE).exists():
+        progress = _restore(output / RESUME_FILE, net, optimizer, rng)
+    started = time.perf_counter() - progress.seconds
+    best_valid = progress.best_valid
+    kept = _log_rows(log_path, progress.epoch)
     with open(log_path, "w", newline="") as handle:
         writer = csv.DictWriter(handle, LOG_FIELDS)
         writer.writeheader()
-        for epoch in range(1, config.epochs + 1):
+        writer.writerows(kept)
+        for epoch in range(progress.epoch + 1, config.epochs + 1):
             net.train()
             losses = []
             for _ in range(config.steps_per_epoch):
@@ -121,14 +142,16 @@ def train_bc(
                 epoch, float(np.mean(losses)), valid_loss, valid_mse, time.perf_counter() - started
             )
             report.epochs.append(row)
-            writer.writerow({k: "" if v is None else v for k, v in vars(row).items()})
-            handle.flush()
-            meta = {"epoch": epoch, "train_seconds": row.seconds}
             if valid_loss is not None and valid_loss < best_valid:
                 best_valid = valid_loss
-                _save(output / "model_best_valid.pt", net, config, data, norm, meta)
+                _save(output / "model_best_valid.pt", net, config, data, norm, _meta(row))
             if config.save_every and epoch % config.save_every == 0:
-                _save(output / f"epoch_{epoch}.pt", net, config, data, norm, meta)
+                _save(output / f"epoch_{epoch}.pt", net, config, data, norm, _meta(row))
+            _keep(
+                output / RESUME_FILE, net, optimizer, rng, _Progress(epoch, best_valid, row.seconds)
+            )
+            writer.writerow({k: "" if v is None else v for k, v in vars(row).items()})
+            handle.flush()
             if on_epoch is not None:
                 on_epoch(row)
     seconds = time.perf_counter() - started
@@ -143,6 +166,58 @@ def train_bc(
     return TrainReport(
         report.checkpoint, log_path, report.epochs, seconds, report.train_demos, report.valid_demos
     )
+
+
+RESUME_FILE = "resume.pt"
+
+
+@dataclass(frozen=True)
+class _Progress:
+    epoch: int = 0
+    best_valid: float = float("inf")
+    seconds: float = 0.0
+
+
+def _meta(row: EpochLog) -> dict[str, Any]:
+    return {"epoch": row.epoch, "train_seconds": row.seconds}
+
+
+def _keep(
+    path: Path,
+    net: RNNPolicyNet,
+    optimizer: torch.optim.Optimizer,
+    rng: np.random.Generator,
+    progress: _Progress,
+) -> None:
+    state = {
+        "net": net.state_dict(),
+        "optimizer": optimizer.state_dict(),
+        "numpy_rng": rng.bit_generator.state,
+        "torch_rng": torch.get_rng_state(),
+        "progress": vars(progress),
+    }
+    tmp = path.with_name(f".{path.name}.tmp")
+    torch.save(state, tmp)
+    tmp.replace(path)
+
+
+def _restore(
+    path: Path, net: RNNPolicyNet, optimizer: torch.optim.Optimizer, rng: np.random.Generator
+) -> _Progress:
+    state = torch.load(path, map_location="cpu", weights_only=False)  # our own file
+    net.load_state_dict(state["net"])
+    optimizer.load_state_dict(state["optimizer"])
+    rng.bit_generator.state = state["numpy_rng"]
+    torch.set_rng_state(state["torch_rng"])
+    return _Progress(**state["progress"])
+
+
+def _log_rows(path: Path, up_to_epoch: int) -> list[dict[str, str]]:
+    """The log's rows of the epochs a resumed run keeps (none for a fresh run)."""
+    if not up_to_epoch or not path.exists():
+        return []
+    with open(path, newline="") as handle:
+        return [row for row in csv.DictReader(handle) if int(row["epoch"]) <= up_to_epoch]
 
 
 def _tensor(array: npt.NDArray[np.float64]) -> torch.Tensor:

@@ -1,5 +1,5 @@
-"""``crowdteleop learn bc | eval`` (torch and the simulators load inside the commands, so
-``crowdteleop --help`` stays fast)."""
+"""``crowdteleop learn bc | rl | eval | table`` (torch and the simulators load inside the
+commands, so ``crowdteleop --help`` stays fast)."""
 
 from __future__ import annotations
 
@@ -13,9 +13,11 @@ from rich.table import Table
 
 from crowdteleop.dataset.cli import clear_errors
 from crowdteleop.learn.actions import ActionKey
+from crowdteleop.learn.cli_rl import eval_ppo, rl
 from crowdteleop.learn.config import Head
 
 app = typer.Typer(help="Train policies on datasets and evaluate them.", no_args_is_help=True)
+app.command()(rl)
 console = Console(soft_wrap=True)
 SimChoice = Literal["ours", "robosuite", "both"]
 
@@ -44,6 +46,10 @@ def bc(
     valid_filter: Annotated[str, typer.Option(help="mask/<key> to validate on")] = "valid",
     save_every: Annotated[int, typer.Option(help="keep epoch_<n>.pt every n epochs")] = 0,
     threads: Annotated[int, typer.Option(help="torch CPU threads")] = 1,
+    demos: Annotated[
+        int | None, typer.Option(help="train on the first n demos of the train filter")
+    ] = None,
+    resume: Annotated[bool, typer.Option(help="continue from output/resume.pt if there")] = False,
 ) -> None:
     """Train a BC-RNN policy (robomimic's low-dim BC-RNN) on a dataset."""
     from rich.progress import (
@@ -74,6 +80,7 @@ def bc(
             valid_filter=valid_filter,
             seed=seed,
             save_every=save_every,
+            max_demos=demos,
         )
         columns = (
             TextColumn("{task.description}"),
@@ -89,7 +96,8 @@ def bc(
                 valid = "" if row.valid_loss is None else f", valid {row.valid_loss:.3f}"
                 bar.update(job, completed=row.epoch, loss=f"loss {row.train_loss:.3f}{valid}")
 
-            report = train_bc(dataset, output, config, advance, threads)
+            report = train_bc(dataset, output, config, advance, threads, resume)
+    _write_run_info(output, dataset, report.train_demos, seed)
     last = report.epochs[-1]
     console.print(
         f"{report.checkpoint}: {epochs} epochs on {report.train_demos} demos "
@@ -99,13 +107,27 @@ def bc(
     )
 
 
+def _write_run_info(output: Path, dataset: Path, demos: int, seed: int) -> None:
+    """``run.json``, as `learn rl` writes it, for `learn table`."""
+    import h5py
+
+    with h5py.File(dataset, "r") as file:
+        first = file["data"][sorted(file["data"])[0]]
+        task = json.loads(first.attrs.get("metadata", "{}")).get("task", "")
+    info = {"algo": "bc", "task": task, "demos": demos, "seed": seed, "dataset": str(dataset)}
+    (output / "run.json").write_text(json.dumps(info, indent=2))
+
+
 @app.command("eval")
 def evaluate_command(
-    checkpoint: Annotated[Path, typer.Argument(help="model.pt from `learn bc`")],
+    checkpoint: Annotated[
+        Path, typer.Argument(help="model.pt from `learn bc`, or a `learn rl` seed directory")
+    ],
     episodes: Annotated[int, typer.Option(help="rollouts per simulation")] = 20,
     sim: Annotated[SimChoice, typer.Option(help="ours, robosuite (env_args) or both")] = "both",
     horizon: Annotated[
-        int | None, typer.Option(help="steps per rollout (default: 400 lift, 500 otherwise)")
+        int | None,
+        typer.Option(help="steps per rollout (BC: 400 lift, 500 otherwise; RL: 1000, the paper's)"),
     ] = None,
     seed: Annotated[int, typer.Option(help="seed of the first episode")] = 0,
     rnn_horizon: Annotated[
@@ -116,9 +138,18 @@ def evaluate_command(
         Path | None, typer.Option(help="JSON to write (default: eval.json beside the model)")
     ] = None,
     threads: Annotated[int, typer.Option(help="torch CPU threads")] = 1,
+    video: Annotated[int, typer.Option(help="rollouts in ours to keep as eval.mp4 (0: none)")] = 2,
 ) -> None:
-    """Roll a trained policy out in our simulation and/or plain robosuite; success rates."""
+    """Roll a trained policy out in our simulation and/or plain robosuite; success rates
+    (and, for RL, the paper's return: steps solved out of the horizon)."""
     import torch
+
+    from crowdteleop.learn.rl_eval import is_ppo_run
+
+    torch.set_num_threads(threads)
+    if is_ppo_run(checkpoint):
+        eval_ppo(checkpoint, episodes, sim, horizon, seed if seed else 1000, video)
+        return
 
     from crowdteleop.learn.bc import load_checkpoint
     from crowdteleop.learn.rollout import EvalReport, evaluate
@@ -130,7 +161,10 @@ def evaluate_command(
         policy = load_checkpoint(checkpoint)
         for name in sims:
             with console.status(f"{episodes} rollouts in {name}..."):
-                reports.append(evaluate(policy, name, episodes, horizon, seed, rnn_horizon))
+                clip = checkpoint.with_name("eval.mp4") if video and name == "ours" else None
+                reports.append(
+                    evaluate(policy, name, episodes, horizon, seed, rnn_horizon, False, clip, video)
+                )
     console.print(results_table(reports))
     target = output or checkpoint.with_name("eval.json")
     result: dict[str, Any] = {
@@ -142,6 +176,30 @@ def evaluate_command(
     }
     target.write_text(json.dumps(result, indent=2))
     console.print(f"written: {target}")
+
+
+@app.command()
+def table(
+    runs: Annotated[list[Path], typer.Argument(help="directories holding evaluated runs")],
+    sim: Annotated[str, typer.Option(help="which evaluation: ours or robosuite")] = "ours",
+    markdown: Annotated[Path | None, typer.Option(help="also write the table here")] = None,
+    plot: Annotated[Path | None, typer.Option(help="PNG of PPO's learning curves")] = None,
+) -> None:
+    """The paper's Table 1 layout: mean ± std of the final return (success rate, runs) per
+    task and demonstration count, beside the paper's figures."""
+    from crowdteleop.learn.table import collect, plot_curves
+    from crowdteleop.learn.table import markdown as as_markdown
+
+    results = collect(runs, sim)
+    if not results:
+        raise typer.BadParameter(f"no evaluated runs (run.json + eval.json) under {runs}")
+    text = as_markdown(results)
+    console.print(text)
+    if markdown is not None:
+        markdown.write_text(text)
+    if plot is not None and any(r.algo == "ppo" for r in results):
+        plot_curves(results, plot)
+        console.print(f"written: {plot}")
 
 
 def results_table(reports: list[Any]) -> Table:

@@ -41,5 +41,47 @@ class BCConfig(BaseModel):
     normalize_obs: bool = Field(False, description="standardize observations (robomimic: off)")
     train_filter: str = "train"
     valid_filter: str | None = "valid"
+    max_demos: int | None = Field(None, ge=1, description="train on the first n train demos")
     seed: int = Field(0, ge=0)
     save_every: int = Field(0, ge=0, description="also keep epoch_<n>.pt every n epochs; 0: no")
+
+
+VecKind = Literal["subproc", "dummy", "ray"]
+
+
+class PPOConfig(BaseModel):
+    """One demonstration-guided PPO run as the paper's Appendix sets it: 100-step training
+    episodes, sparse reward, a start from a demonstration's state with probability 0.9, an
+    actor and a critic each of LSTM 100 then fully connected 300 and 200, a Gaussian with a
+    learned state-independent log-std. The rest are PPO's usual settings (sb3's defaults where
+    SURREAL's are not stated)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    demos: int = Field(0, ge=0, description="demonstrations to start episodes from; 0: pure RL")
+    demo_reset_p: float = Field(0.9, ge=0, le=1, description="chance a reset starts in a demo")
+    horizon: int = Field(100, ge=1, description="steps per training episode (myopic horizon)")
+    obs_keys: tuple[str, ...] = Field(STOCK_OBS_KEYS, min_length=1)
+    total_steps: int = Field(200_000, ge=1, description="environment steps to train for")
+    budget_s: float | None = Field(None, gt=0, description="also stop after this wall time")
+    n_envs: int = Field(4, ge=1, le=1024, description="environments stepping in parallel")
+    vec: VecKind = Field("subproc", description="where they run: subprocesses, inline, Ray")
+    ray_address: str | None = Field(None, description="Ray cluster to join (vec=ray)")
+    ray_actor_cpus: float = Field(1.0, gt=0, description="CPUs each Ray actor asks for")
+    lstm_hidden: int = Field(100, ge=1)
+    net_arch: tuple[int, ...] = (300, 200)
+    n_steps: int = Field(256, ge=2, description="steps per environment per rollout")
+    batch_size: int = Field(256, ge=2)
+    n_epochs: int = Field(10, ge=1)
+    learning_rate: float = Field(3e-4, gt=0, le=1)
+    gamma: float = Field(0.99, gt=0, le=1)
+    gae_lambda: float = Field(0.95, gt=0, le=1)
+    clip_range: float = Field(0.2, gt=0)
+    ent_coef: float = Field(0.0, ge=0)
+    log_std_init: float = Field(-0.5, description="initial log standard deviation")
+    normalize_obs: bool = Field(True, description="running observation standardization")
+    eval_every: int = Field(10_000, ge=1, description="env steps between learning-curve points")
+    eval_episodes: int = Field(10, ge=1, description="normal-reset episodes per curve point")
+    checkpoint_every: int = Field(20_000, ge=1, description="env steps between checkpoints")
+    seed: int = Field(0, ge=0)
+    threads: int = Field(1, ge=1, description="torch CPU threads")

@@ -65,13 +65,7 @@ def load_learn_data(
 ) -> LearnData:
     """The dataset's demos under the two filter keys; refuses a dataset without ``obs/`` (or
     without ``action_key``)."""
-    try:
-        file = h5py.File(path, "r")
-    except OSError as exc:
-        raise LearnDataError(f"{path}: not a readable HDF5 dataset ({exc})") from exc
-    with file:
-        if "data" not in file or not len(file["data"]):
-            raise LearnDataError(f"{path} holds no demonstrations (no data/demo_*)")
+    with open_learn_dataset(path) as file:
         data = file["data"]
         first = data[_demo_names(data)[0]]
         if "obs" not in first:
@@ -115,6 +109,18 @@ def load_learn_data(
                 _text(data.attrs.get("actions_abs_controller_configs", "null"))
             ),
         )
+
+
+def open_learn_dataset(path: Path) -> h5py.File:
+    """The dataset open for reading; refused clearly if it is no HDF5 or holds no demos."""
+    try:
+        file = h5py.File(path, "r")
+    except OSError as exc:
+        raise LearnDataError(f"{path}: not a readable HDF5 dataset ({exc})") from exc
+    if "data" not in file or not len(file["data"]):
+        file.close()
+        raise LearnDataError(f"{path} holds no demonstrations (no data/demo_*)")
+    return file
 
 
 def _demo_names(data: h5py.Group) -> list[str]:

@@ -14,6 +14,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -31,6 +32,7 @@ PLAIN_DEFAULTS = {
     "use_camera_obs": False,
     "ignore_done": True,
 }
+VIDEO_CAMERA = "frontview"
 TRACE_KEYS = ("robot0_eef_pos", "robot0_gripper_qpos", "object")
 
 
@@ -97,20 +99,39 @@ def evaluate(
     seed: int = 0,
     rnn_horizon: int | None = None,
     trace: bool = False,
+    video: Path | None = None,
+    video_episodes: int = 2,
 ) -> EvalReport:
-    """``episodes`` rollouts with seeds ``seed, seed + 1, ...`` in one simulation."""
+    """``episodes`` rollouts with seeds ``seed, seed + 1, ...`` in one simulation; in ours,
+    ``video`` keeps the first ``video_episodes`` as an MP4."""
     horizon = default_horizon(checkpoint) if horizon is None else horizon
     policy = Policy(checkpoint, rnn_horizon)
     started = time.perf_counter()
     outcomes = []
+    clips: list[npt.NDArray[np.uint8]] = []
     with open_env(checkpoint, sim) as env:
         for k in range(episodes):
-            outcomes.append(run_episode(env, policy, seed + k, horizon, trace))
+            frames: list[npt.NDArray[np.uint8]] | None = None
+            if video is not None and isinstance(env, OurEnv) and k < video_episodes:
+                frames = []
+            outcomes.append(run_episode(env, policy, seed + k, horizon, trace, frames))
+            clips.extend(frames or [])
+    if video is not None and clips:
+        from crowdteleop.dataset.video import Mp4Writer
+
+        with Mp4Writer(video, fps=20) as writer:
+            for frame in clips:
+                writer.write(frame)
     return EvalReport(sim, horizon, outcomes, time.perf_counter() - started)
 
 
 def run_episode(
-    env: RolloutEnv, policy: Policy, seed: int, horizon: int, trace: bool = False
+    env: RolloutEnv,
+    policy: Policy,
+    seed: int,
+    horizon: int,
+    trace: bool = False,
+    frames: list[npt.NDArray[np.uint8]] | None = None,
 ) -> EpisodeOutcome:
     obs = env.reset(seed)
     policy.reset(seed)
@@ -124,6 +145,8 @@ def run_episode(
                 record[key].append(obs[key].tolist())
             record["action"].append(action.tolist())
         obs, success = env.step(action)
+        if frames is not None and isinstance(env, OurEnv):
+            frames.append(env.sim.render(VIDEO_CAMERA, 256, 256))
         if success:
             return EpisodeOutcome(seed, True, step, record)
     return EpisodeOutcome(seed, False, horizon, record)

@@ -1,0 +1,128 @@
+"""Learning from the platform's demonstrations (issue 13): the paper's Table 1 experiment at
+the scale of one 2-core machine, plus BC-RNN on the same data.
+
+    .venv/bin/python benchmarks/learning.py --ppo-budget 5m --bc-epochs 50 \
+        > out/learning.log 2>&1 &
+
+1. scripted demonstrations recorded through the platform's control and recording path (the
+   files workers produce), ``--demos`` successes per task, Panda with OSC;
+2. ``crowdteleop dataset build --obs low-dim``;
+3. ``crowdteleop learn rl`` per task x demonstration count {0, 10, 100} x seed, and ``learn
+   bc`` on 10 and 100 demos, ``--jobs`` at a time, each then ``learn eval`` (ours: the paper's
+   return over 1000 steps for PPO, success within robomimic's horizon for BC);
+4. ``crowdteleop learn table`` (Markdown) and the learning curves (PNG).
+
+Writes everything under ``--out`` (default out/learning/); logs per job in ``logs/``.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import typer
+
+app = typer.Typer(add_completion=False)
+CLI = [sys.executable, "-m", "crowdteleop"]
+
+
+def record(task: str, demos: int, directory: Path) -> dict[str, float]:
+    """Scripted episodes, seeds 0, 1, ..., until ``demos`` succeeded."""
+    from crowdteleop.dataset.scripted import record_scripted_episode, scripted_rig
+
+    started, successes, seed = time.perf_counter(), 0, 0
+    directory.mkdir(parents=True, exist_ok=True)
+    with scripted_rig(task, "osc", robot="Panda") as rig:
+        while successes < demos and seed < 3 * demos:
+            episode = record_scripted_episode(rig, directory, f"{task}-{seed}", seed)
+            if episode.outcome != "success" and episode.path is not None:
+                episode.path.unlink()  # the datasets hold successful demonstrations
+            successes += episode.outcome == "success"
+            seed += 1
+    return {"attempts": seed, "successes": successes, "seconds": time.perf_counter() - started}
+
+
+def run(command: list[str], log: Path) -> float:
+    started = time.perf_counter()
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with log.open("a") as file:
+        file.write("$ " + " ".join(command) + "\n")
+        file.flush()
+        subprocess.run(command, stdout=file, stderr=subprocess.STDOUT, check=True)
+    return time.perf_counter() - started
+
+
+@app.command()
+def main(
+    out: Path = Path("out/learning"),
+    tasks: str = "lift,pick-place-can",
+    demo_counts: str = "0,10,100",
+    bc_counts: str = "10,100",
+    seeds: int = 3,
+    demos: int = 112,  # 10 % go to mask/valid: BC still gets 100 to train on
+    ppo_budget: str = "5m",
+    bc_epochs: int = 50,
+    n_envs: int = 4,
+    eval_episodes: int = 10,
+    jobs: int = 2,
+    plot: Path = Path("benchmarks/learning-curves.png"),
+) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, object] = {}
+    datasets = {}
+    for task in tasks.split(","):
+        dataset = out / f"{task}.hdf5"
+        if not dataset.exists():
+            timings[f"record {task}"] = record(task, demos, out / "episodes" / task)
+            build = [*CLI, "dataset", "build", str(out / "episodes" / task), "--output"]
+            timings[f"build {task}"] = run(
+                [*build, str(dataset), "--obs", "low-dim", "--overwrite"], out / "logs" / "build"
+            )
+        datasets[task] = dataset
+        print(task, timings.get(f"record {task}"), flush=True)
+
+    # seed-major, so that every condition has a first seed early (and BC after it)
+    commands: list[tuple[str, list[list[str]]]] = []
+    for seed in range(seeds):
+        for task, dataset in datasets.items():
+            for count in (int(c) for c in demo_counts.split(",")):
+                runs = out / "ppo" / task / f"demos_{count}"
+                rl = [*CLI, "learn", "rl", "--dataset", str(dataset), "--demos", str(count)]
+                rl += ["--output", str(runs), "--first-seed", str(seed), "--budget", ppo_budget]
+                rl += ["--vec", "dummy", "--n-envs", str(n_envs), "--resume"]
+                evaluate = [*CLI, "learn", "eval", str(runs / f"seed_{seed}"), "--sim", "ours"]
+                evaluate += ["--episodes", str(eval_episodes), "--video", "1"]
+                commands.append((f"ppo-{task}-{count}-{seed}", [rl, evaluate]))
+        if seed:
+            continue
+        for task, dataset in datasets.items():
+            for count in (int(c) for c in bc_counts.split(",")):
+                target = out / "bc" / task / f"demos_{count}" / "seed_0"
+                bc = [*CLI, "learn", "bc", str(dataset), "--output", str(target)]
+                bc += ["--demos", str(count), "--epochs", str(bc_epochs)]
+                evaluate = [*CLI, "learn", "eval", str(target / "model.pt"), "--sim", "ours"]
+                evaluate += ["--episodes", str(eval_episodes)]
+                commands.append((f"bc-{task}-{count}", [bc, evaluate]))
+
+    def job(name: str, steps: list[list[str]]) -> tuple[str, float]:
+        seconds = sum(run(step, out / "logs" / f"{name}.log") for step in steps)
+        print(f"done {name} in {seconds:.0f} s", flush=True)
+        return name, seconds
+
+    started = time.perf_counter()
+    with ThreadPoolExecutor(jobs) as pool:
+        for name, seconds in pool.map(lambda item: job(*item), commands):
+            timings[name] = seconds
+    timings["all jobs"] = time.perf_counter() - started
+    (out / "timings.json").write_text(json.dumps(timings, indent=2))
+    table = [*CLI, "learn", "table", str(out), "--markdown", str(out / "table.md")]
+    run([*table, "--plot", str(plot)], out / "logs" / "table.log")
+    print((out / "table.md").read_text())
+
+
+if __name__ == "__main__":
+    app()

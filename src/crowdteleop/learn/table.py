@@ -1,0 +1,170 @@
+"""``learn table``: trained and evaluated runs gathered into the paper's Table 1 layout (mean
+± std of the final policies' return, and their success rate, per task and demonstration
+count), beside the paper's own figures, and their learning curves as a PNG."""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+# The paper's Table 1: return out of 1000 after 24 h (can) / 48 h (round nut), 10 seeds.
+PAPER_TABLE = {
+    "Bin Picking (Can)": {
+        "0": "0 ± 0",
+        "1": "278 ± 351",
+        "10": "273 ± 417",
+        "100": "385 ± 466",
+        "1000": "641 ± 421",
+    },
+    "Nut-and-peg Assembly (Round)": {
+        "0": "0 ± 0",
+        "1": "381 ± 467",
+        "10": "663 ± 435",
+        "100": "575 ± 470",
+        "1000": "775 ± 388",
+    },
+}
+
+
+Curve = tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]  # steps, success rate
+
+
+@dataclass(frozen=True)
+class RunResult:
+    path: Path
+    algo: str
+    task: str
+    demos: int
+    seed: int
+    sim: str
+    mean_return: float | None  # None for a BC evaluation, which counts successes only
+    success_rate: float
+
+
+def collect(roots: list[Path], sim: str = "ours") -> list[RunResult]:
+    """Every run under ``roots`` with a ``run.json`` and an ``eval.json`` holding ``sim``."""
+    results = []
+    for root in roots:
+        for run_file in sorted(root.rglob("run.json")):
+            run = run_file.parent
+            evaluation = run / "eval.json"
+            if not evaluation.exists():
+                continue
+            info = json.loads(run_file.read_text())
+            summary = json.loads(evaluation.read_text())["results"].get(sim)
+            if summary is None:
+                continue
+            results.append(
+                RunResult(
+                    run,
+                    info["algo"],
+                    info["task"],
+                    int(info["demos"]),
+                    int(info["seed"]),
+                    sim,
+                    summary.get("mean_return"),
+                    float(summary["success_rate"]),
+                )
+            )
+    return results
+
+
+@dataclass(frozen=True)
+class Cell:
+    runs: int
+    returns: list[float]
+    success: list[float]
+
+    def text(self) -> str:
+        ret = f"{np.mean(self.returns):.0f} ± {np.std(self.returns):.0f}" if self.returns else "-"
+        return f"{ret} ({np.mean(self.success):.0%}, n={self.runs})"
+
+
+def cells(results: list[RunResult]) -> dict[tuple[str, str], dict[int, Cell]]:
+    """(algo, task) -> demonstration count -> the runs' final return and success."""
+    grouped: dict[tuple[str, str], dict[int, list[RunResult]]] = defaultdict(
+        lambda: defaultdict(list)
+    )
+    for result in results:
+        grouped[(result.algo, result.task)][result.demos].append(result)
+    return {
+        key: {
+            demos: Cell(
+                len(runs),
+                [r.mean_return for r in runs if r.mean_return is not None],
+                [r.success_rate for r in runs],
+            )
+            for demos, runs in sorted(by_demos.items())
+        }
+        for key, by_demos in sorted(grouped.items())
+    }
+
+
+def markdown(results: list[RunResult]) -> str:
+    """The table in Markdown: ours per (algo, task), then the paper's rows."""
+    table = cells(results)
+    counts = sorted({d for row in table.values() for d in row} | {0, 1, 10, 100, 1000})
+    lines = [
+        "| task | method | " + " | ".join("None" if c == 0 else str(c) for c in counts) + " |",
+        "|---|---|" + "---|" * len(counts),
+    ]
+    for (algo, task), row in table.items():
+        method = "demo-guided PPO" if algo == "ppo" else "BC-RNN"
+        lines.append(
+            f"| {task} (ours) | {method} | "
+            + " | ".join(row[c].text() if c in row else "" for c in counts)
+            + " |"
+        )
+    for task, paper in PAPER_TABLE.items():
+        lines.append(
+            f"| {task} (paper) | demo-guided PPO | "
+            + " | ".join(paper.get(str(c), "") for c in counts)
+            + " |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def plot_curves(results: list[RunResult], output: Path) -> None:
+    """Per task, PPO's success rate from normal resets against environment steps: the mean
+    over seeds per demonstration count, each seed faint behind it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ppo = [r for r in results if r.algo == "ppo"]
+    tasks = sorted({r.task for r in ppo})
+    if not tasks:
+        raise ValueError("no PPO runs with curves to plot")
+    fig, axes = plt.subplots(1, len(tasks), figsize=(6 * len(tasks), 4), squeeze=False)
+    for axis, task in zip(axes[0], tasks, strict=True):
+        by_demos: dict[int, list[Curve]] = defaultdict(list)
+        for run in (r for r in ppo if r.task == task):
+            rows = list(csv.DictReader((run.path / "curve.csv").open()))
+            steps = np.array([float(row["steps"]) for row in rows])
+            success = np.array([float(row["success_rate"]) for row in rows])
+            by_demos[run.demos].append((steps, success))
+        for index, (demos, curves) in enumerate(sorted(by_demos.items())):
+            color = f"C{index}"
+            for steps, success in curves:
+                axis.plot(steps, success, color=color, alpha=0.25, linewidth=0.8)
+            length = min(len(s) for s, _ in curves)
+            mean = np.mean([success[:length] for _, success in curves], axis=0)
+            label = f"{demos} demos" if demos else "pure RL"
+            axis.plot(curves[0][0][:length], mean, color=color, label=f"{label} (n={len(curves)})")
+        axis.set_title(f"{task}: demonstration-guided PPO")
+        axis.set_xlabel("environment steps")
+        axis.set_ylabel("success rate, normal resets (100 steps)")
+        axis.set_ylim(-0.02, 1.02)
+        axis.grid(alpha=0.3)
+        axis.legend()
+    fig.tight_layout()
+    output.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(output, dpi=110)
+    plt.close(fig)

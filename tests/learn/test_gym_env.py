@@ -1,0 +1,91 @@
+"""The Gymnasium environment over our simulation, as a learner sees it: Gymnasium's own
+checker passes, the reward is sparse (1 on every solved step), training episodes stop at the
+paper's 100-step horizon, and bad actions are refused with a clear error."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from crowdteleop.errors import InvalidActionError
+from crowdteleop.learn.demo_states import StartState, load_demo_states
+from crowdteleop.learn.gym_env import PAPER_HORIZON, EnvSettings, SimEnv
+
+
+@pytest.fixture(scope="module")
+def demos(lift_dataset):
+    return load_demo_states(lift_dataset)
+
+
+@pytest.fixture
+def env(demos):
+    env = SimEnv(EnvSettings(sim_config=demos.sim_config), demos)
+    yield env
+    env.close()
+
+
+def test_gymnasiums_checker_passes(env):
+    check_env(env, skip_render_check=True)
+
+
+def test_spaces_are_the_simulations_own(env):
+    assert env.action_space.shape == (env.sim.action_spec.size,)
+    np.testing.assert_array_equal(env.action_space.low, env.sim.action_spec.low)
+    obs, _ = env.reset(seed=0)
+    # robot0_eef_pos 3 + eef_quat 4 + gripper_qpos 2 + Lift's object-state 10
+    assert obs.shape == env.observation_space.shape == (19,)
+    assert obs.dtype == np.float32
+
+
+def test_the_reward_is_one_on_solved_steps_and_zero_elsewhere(env, demos):
+    demo = demos.demos[0]
+    _, info = env.reset(options={"start": StartState(0, len(demo) - 1)})
+    assert info["start"] == "demo" and info["success"], "a successful demo ends solved"
+    _, reward, terminated, _, info = env.step(np.zeros(7, dtype=np.float32))
+    assert reward == 1.0 and info["success"]
+    assert not terminated, "the paper's return counts every solved step: no early stop"
+    env.reset(options={"start": StartState(0, 0)})
+    _, reward, *_ = env.step(np.zeros(7, dtype=np.float32))
+    assert reward == 0.0
+
+
+def test_training_episodes_are_truncated_at_the_papers_horizon(env):
+    env.reset(seed=1)
+    flags = [env.step(env.action_space.sample())[2:4] for _ in range(PAPER_HORIZON)]
+    assert flags[-1] == (False, True)
+    assert not any(truncated for _, truncated in flags[:-1])
+
+
+def test_terminate_on_success_ends_the_episode_when_solved(demos):
+    env = SimEnv(EnvSettings(sim_config=demos.sim_config, terminate_on_success=True), demos)
+    try:
+        env.reset(options={"start": StartState(0, len(demos.demos[0]) - 1)})
+        assert env.step(np.zeros(7, dtype=np.float32))[2] is True
+    finally:
+        env.close()
+
+
+def test_a_nan_action_is_refused_with_a_clear_error(env):
+    env.reset(seed=0)
+    with pytest.raises(InvalidActionError, match="NaN"):
+        env.step(np.full(7, np.nan, dtype=np.float32))
+    env.step(np.zeros(7, dtype=np.float32))  # and the environment goes on
+
+
+def test_camera_observations_are_an_image_beside_the_low_dim_vector(demos):
+    settings = EnvSettings(sim_config=demos.sim_config, camera="frontview", image_size=64)
+    env = SimEnv(settings)
+    try:
+        obs, _ = env.reset(seed=0)
+        assert obs["image"].shape == (64, 64, 3) and obs["image"].dtype == np.uint8
+        assert obs["image"].std() > 5, "a rendered scene, not a blank frame"
+        assert obs["low_dim"].shape == (19,)
+        assert env.observation_space.contains(obs)
+    finally:
+        env.close()
+
+
+def test_an_unknown_observation_key_names_the_ones_there_are(demos):
+    with pytest.raises(ValueError, match="robot0_eef_pos"):
+        SimEnv(EnvSettings(sim_config=demos.sim_config, obs_keys=("no_such_key",)))
