@@ -36,7 +36,9 @@ def test_a_resumed_run_reaches_the_weights_of_an_unbroken_one(lift_dataset, tmp_
     assert [int(row["epoch"]) for row in rows] == [1, 2, 3, 4]
 
 
-def test_demos_limits_training_to_the_first_n_and_run_json_says_so(lift_dataset, tmp_path):
+def test_demos_and_seeds_train_each_seed_on_the_first_n_and_run_json_says_so(
+    lift_dataset, tmp_path
+):
     result = CliRunner().invoke(
         app,
         [
@@ -53,12 +55,16 @@ def test_demos_limits_training_to_the_first_n_and_run_json_says_so(lift_dataset,
             "16",
             "--demos",
             "1",
+            "--seeds",
+            "2",
         ],
     )
     assert result.exit_code == 0, result.output
-    info = json.loads((tmp_path / "run.json").read_text())
-    assert (info["algo"], info["task"], info["demos"], info["seed"]) == ("bc", "lift", 1, 0)
-    assert load_checkpoint(tmp_path / "model.pt").dataset["train_demos"] == 1
+    for seed in (0, 1):
+        info = json.loads((tmp_path / f"seed_{seed}" / "run.json").read_text())
+        assert (info["algo"], info["task"], info["demos"], info["seed"]) == ("bc", "lift", 1, seed)
+        checkpoint = load_checkpoint(tmp_path / f"seed_{seed}" / "model.pt")
+        assert checkpoint.dataset["train_demos"] == 1 and checkpoint.config.seed == seed
 
 
 def test_more_demos_than_the_split_holds_are_refused(lift_dataset, tmp_path):

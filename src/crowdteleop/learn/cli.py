@@ -14,7 +14,7 @@ from rich.table import Table
 from crowdteleop.dataset.cli import clear_errors
 from crowdteleop.learn.actions import ActionKey
 from crowdteleop.learn.cli_rl import eval_ppo, rl
-from crowdteleop.learn.config import Head
+from crowdteleop.learn.config import BCConfig, Head
 
 app = typer.Typer(help="Train policies on datasets and evaluate them.", no_args_is_help=True)
 app.command()(rl)
@@ -27,7 +27,10 @@ def bc(
     dataset: Annotated[Path, typer.Argument(help="dataset with low-dim obs (dataset build)")],
     output: Annotated[Path, typer.Option(help="directory for model.pt and log.csv")],
     epochs: Annotated[int, typer.Option(help="epochs of --steps-per-epoch gradient steps")] = 200,
-    seed: Annotated[int, typer.Option(help="seed of weights and batches")] = 0,
+    seed: Annotated[int, typer.Option(help="seed of weights and batches (the first one)")] = 0,
+    seeds: Annotated[
+        int, typer.Option(help="seeds to train one after another (then in output/seed_<k>)")
+    ] = 1,
     head: Annotated[Head, typer.Option(help="deterministic or gmm (5 modes)")] = "deterministic",
     actions: Annotated[
         ActionKey, typer.Option(help="learn the deltas, or actions_abs (absolute hand targets)")
@@ -52,19 +55,10 @@ def bc(
     resume: Annotated[bool, typer.Option(help="continue from output/resume.pt if there")] = False,
 ) -> None:
     """Train a BC-RNN policy (robomimic's low-dim BC-RNN) on a dataset."""
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeRemainingColumn,
-    )
-
-    from crowdteleop.learn.bc import EpochLog, train_bc
-    from crowdteleop.learn.config import STOCK_OBS_KEYS, BCConfig
+    from crowdteleop.learn.config import STOCK_OBS_KEYS
 
     with clear_errors():
-        config = BCConfig(
+        base = BCConfig(
             obs_keys=tuple(obs_key or STOCK_OBS_KEYS),
             head=head,
             actions=actions,
@@ -82,25 +76,46 @@ def bc(
             save_every=save_every,
             max_demos=demos,
         )
-        columns = (
-            TextColumn("{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeRemainingColumn(),
-            TextColumn("{task.fields[loss]}"),
-        )
-        with Progress(*columns, console=console) as bar:
-            job = bar.add_task("epochs", total=epochs, loss="")
+        for k in range(seed, seed + seeds):
+            run = output if seeds == 1 else output / f"seed_{k}"
+            _train_bc_seed(dataset, run, base.model_copy(update={"seed": k}), threads, resume)
 
-            def advance(row: EpochLog) -> None:
-                valid = "" if row.valid_loss is None else f", valid {row.valid_loss:.3f}"
-                bar.update(job, completed=row.epoch, loss=f"loss {row.train_loss:.3f}{valid}")
 
-            report = train_bc(dataset, output, config, advance, threads, resume)
-    _write_run_info(output, dataset, report.train_demos, seed)
+def _train_bc_seed(
+    dataset: Path, output: Path, config: BCConfig, threads: int, resume: bool
+) -> None:
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+    )
+
+    from crowdteleop.learn.bc import EpochLog, train_bc
+
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        TextColumn("{task.fields[loss]}"),
+    )
+    with Progress(*columns, console=console) as bar:
+        job = bar.add_task(f"seed {config.seed}: epochs", total=config.epochs, loss="")
+
+        def advance(row: EpochLog) -> None:
+            valid = "" if row.valid_loss is None else f", valid {row.valid_loss:.3f}"
+            bar.update(job, completed=row.epoch, loss=f"loss {row.train_loss:.3f}{valid}")
+
+        report = train_bc(dataset, output, config, advance, threads, resume)
+    _write_run_info(output, dataset, report.train_demos, config.seed)
+    if not report.epochs:
+        console.print(f"{report.checkpoint}: already trained for {config.epochs} epochs")
+        return
     last = report.epochs[-1]
     console.print(
-        f"{report.checkpoint}: {epochs} epochs on {report.train_demos} demos "
+        f"{report.checkpoint}: {config.epochs} epochs on {report.train_demos} demos "
         f"({report.valid_demos} valid) in {report.seconds:.0f} s; loss {last.train_loss:.3f}"
         + ("" if last.valid_loss is None else f", valid {last.valid_loss:.3f}")
         + f"; log: {report.log}"
