@@ -59,3 +59,32 @@ def test_a_device_taking_over_mid_press_anchors_where_the_hand_is(lift_sim):
         teleop.step(board.command())
 
     assert np.linalg.norm(lift_sim.robot_state().end_effector.position - hand) < 0.01
+
+
+def test_a_video_stall_holds_the_clutch_open_until_the_device_lets_go_and_presses_again():
+    board = CommandBoard()
+    board.apply_pose("p", _pose(1, engaged=True))
+    board.command()  # the first step after taking control shows the clutch released
+    assert board.command().engaged
+    assert board.set_video_stalled(True)
+    assert not board.command().engaged, "the stall releases the clutch at once"
+    board.apply_pose("p", _pose(2, engaged=True))
+    assert not board.command().engaged, "a held button does not drive blind"
+    board.set_video_stalled(False)
+    board.apply_pose("p", _pose(3, engaged=True))
+    assert not board.command().engaged, "the picture is back, but the press is an old one"
+    board.apply_pose("p", _pose(4, engaged=False))
+    board.apply_pose("p", _pose(5, engaged=True))
+    assert board.command().engaged, "let go and pressed again: drives"
+
+
+def test_letting_go_during_a_stall_counts_as_the_release():
+    board = CommandBoard()
+    board.set_video_stalled(True)
+    board.apply_pose("p", _pose(1, engaged=False))
+    board.command()
+    board.apply_pose("p", _pose(2, engaged=True))
+    assert not board.command().engaged, "never while the video is stalled"
+    board.set_video_stalled(False)
+    board.apply_pose("p", _pose(3, engaged=True))
+    assert board.command().engaged

@@ -26,6 +26,9 @@ KNOWN_CODES = {
     "channel",
     "rate_limited",
     "not_in_control",
+    "stale_input",  # the fuzzer's poses are dated 1 ms after 1970
+    "not_worker",  # video reports from the fuzzer (an admin)
+    "bad_pong",
 }
 
 VALID = {

@@ -27,6 +27,8 @@ function built() {
     takeControl: f.takeControl(),
     ping: f.ping(7),
     pong: f.pong({ v: 1, type: "ping", id: 3, server_time_s: 1234.5 }),
+    videoStalled: f.videoStatus(true, 1234.4),
+    videoResumed: f.videoStatus(false, -3),
     latency: f.latency([12.5, 80, 0], 29.7),
     latencyEmpty: f.latency([], 0),
     latencyCleaned: f.latency([-0.3, NaN, 70_000, ...Array(120).fill(50)], Infinity),
@@ -94,9 +96,13 @@ describe("MessageFactory", () => {
     assert.equal(f.pose([0, 0, 0], [0, 0, 0, 1], 1, 0, 5).seq, 11);
     assert.equal(f.clutch(true).client_time_ms, 1_700_000_000_000);
   });
-  test("pong echoes the server ping's id and server_time_s", () => {
-    const pong = new MessageFactory("vr").pong({ v: 1, type: "ping", id: 9, server_time_s: 55.25 });
-    assert.deepEqual(pong, { v: 1, type: "pong", id: 9, server_time_s: 55.25 });
+  test("pong echoes the server ping's id and server_time_s, stamped with our clock", () => {
+    const pong = new MessageFactory("vr", () => 1_700_000_000_500).pong({ v: 1, type: "ping", id: 9, server_time_s: 55.25 });
+    assert.deepEqual(pong, { v: 1, type: "pong", id: 9, server_time_s: 55.25, client_time_ms: 1_700_000_000_500 });
+  });
+  test("a video status says stalled or not, with a whole, non-negative gap", () => {
+    assert.deepEqual(built().videoStalled, { v: 1, type: "video", stalled: true, gap_ms: 1234 });
+    assert.equal(built().videoResumed.gap_ms, 0);
   });
   test("a latency report is kept inside the schema's bounds", () => {
     const report = built().latencyCleaned;

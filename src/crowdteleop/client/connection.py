@@ -222,9 +222,8 @@ class TeleopClient:
         elif isinstance(message, Hello):
             state.hello = message
         elif isinstance(message, ServerPing):
-            self.send_raw(
-                "events", {"type": "pong", "id": message.id, "server_time_s": message.server_time_s}
-            )
+            pong = {"type": "pong", "id": message.id, "server_time_s": message.server_time_s}
+            self.send_raw("events", {**pong, "client_time_ms": self._now_ms()})
         self._changed.set()
 
     # --- sending --------------------------------------------------------------------------

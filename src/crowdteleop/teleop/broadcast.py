@@ -135,6 +135,7 @@ def status_of(session: TeleopSession, result: TickResult) -> TaskStatus:
         total=progress.total if progress else 0,
         controlling_device=driver.device if driver else None,
         successes=tracker.successes,
+        video_stalled=session.board.video_stalled,
         end_effector=(
             float(result.end_effector[0]),
             float(result.end_effector[1]),

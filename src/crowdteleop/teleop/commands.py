@@ -48,6 +48,10 @@ class CommandBoard:
     has_pose: bool = False
     # Set when control changes hands; the next `command` shows the clutch released once.
     release_pending: bool = False
+    # The worker's video stopped: the clutch stays released until the device lets go (a
+    # message with the clutch open) and presses again, so nobody drives blind.
+    video_stalled: bool = False
+    await_release: bool = False
 
     def take_control(self, peer_id: str, device: DeviceKind) -> bool:
         """Make (peer, device) the driver; returns whether anything changed."""
@@ -74,6 +78,23 @@ class CommandBoard:
         self.has_pose = False
         return True
 
+    def set_video_stalled(self, stalled: bool) -> bool:
+        """The worker's page saw its video stop (or resume); returns whether that changed."""
+        if stalled == self.video_stalled:
+            return False
+        self.video_stalled = stalled
+        if stalled:
+            self.engaged = False
+            self.await_release = True
+        return True
+
+    def _engage(self, wanted: bool) -> bool:
+        """The clutch a device asks for: never while the video is stalled, nor after a stall
+        until the device has let go once."""
+        if not wanted:
+            self.await_release = False
+        return wanted and not self.await_release and not self.video_stalled
+
     def release_clutch(self) -> None:
         """After a reset the arm waits for a fresh press: a clutch still held from the last
         episode would anchor the new scene to a stale device pose."""
@@ -99,7 +120,7 @@ class CommandBoard:
             return False
         self.position = np.array(message.position, dtype=float)
         self.quaternion = np.array(message.quaternion, dtype=float)
-        self.engaged = message.engaged
+        self.engaged = self._engage(message.engaged)
         self.gripper_closed = message.gripper
         self.last_client_time_ms = message.client_time_ms
         self.has_pose = True
@@ -110,7 +131,7 @@ class CommandBoard:
             return False
         if isinstance(message, ClutchEvent):
             # Engaging needs a pose to anchor on; a clutch press before any pose waits for one.
-            self.engaged = message.engaged and self.has_pose
+            self.engaged = self._engage(message.engaged) and self.has_pose
         else:
             self.gripper_closed = message.closed
         self.last_client_time_ms = message.client_time_ms

@@ -89,6 +89,18 @@ class LimitsConfig(BaseModel):
     messages_per_second: float = Field(200.0, gt=0, description="sustained, per peer")
     burst: int = Field(100, ge=1, description="messages a peer may send at once")
     max_peers: int = Field(4, ge=1, le=16)
+    max_input_age_ms: float = Field(
+        500.0,
+        gt=0,
+        description="a pose, press or gripper command older than this on arrival (the "
+        "client's clock mapped onto ours through ping / pong) is not applied; releases always are",
+    )
+    video_stall_ms: float = Field(
+        1000.0,
+        gt=0,
+        description="the worker's page reports its video stalled after this long without a new "
+        "frame, and the clutch is released until the device lets go and presses again",
+    )
     connect_timeout_s: float = Field(
         15.0,
         gt=0,

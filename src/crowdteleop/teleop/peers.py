@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from aiortc import RTCDataChannel, RTCPeerConnection
 from pydantic import BaseModel
 
+from crowdteleop.teleop.client_clock import ClientClock
 from crowdteleop.teleop.guard import InboundGuard, TokenBucket
 from crowdteleop.teleop.protocol import ErrorEvent, PeerRole, encode
 from crowdteleop.teleop.video import SimVideoTrack
@@ -30,6 +31,9 @@ class Peer:
         default_factory=lambda: TokenBucket(ERROR_EVENTS_PER_SECOND, 20)
     )
     errors_suppressed: int = 0
+    clock: ClientClock = field(default_factory=ClientClock)  # to date its poses
+    stale_told_s: float = float("-inf")  # when it was last told its input arrives too late
+    video_stalled: bool = False  # its page said its video stopped
 
     @property
     def wants_video(self) -> bool:

@@ -126,11 +126,22 @@ class Ping(_Inbound):
 
 
 class Pong(_Inbound):
-    """Reply to the server's `ping` (the server measures data-channel RTT with it)."""
+    """Reply to the server's `ping`: the server measures data-channel RTT with it and, from
+    ``client_time_ms``, how far the client's clock is from its own (to date poses)."""
 
     type: Literal["pong"] = "pong"
     id: Seq
     server_time_s: float = Field(description="the server ping's own time, echoed")
+    client_time_ms: ClientTime | None = Field(None, description="client clock when answering")
+
+
+class VideoStatus(_Inbound):
+    """The worker's page saw its video stop (no new frame for ``video_stall_ms``) or resume.
+    A stall releases the clutch until the device lets go and presses again."""
+
+    type: Literal["video"] = "video"
+    stalled: bool
+    gap_ms: Annotated[float, Field(ge=0, le=1e9)] = 0.0
 
 
 class LatencyReport(_Inbound):
@@ -151,6 +162,7 @@ EventMessage = Annotated[
     | TakeControl
     | Ping
     | Pong
+    | VideoStatus
     | LatencyReport,
     Field(discriminator="type"),
 ]
@@ -169,6 +181,8 @@ class Hello(_Message):
     width: int
     height: int
     controlling_device: DeviceKind | None
+    video_stall_ms: float = Field(1000.0, description="a page whose video stops this long says so")
+    max_input_age_ms: float = Field(500.0, description="older poses and presses are not applied")
 
 
 class ErrorEvent(_Message):
@@ -201,6 +215,7 @@ class TaskStatus(_Message):
     controlling_device: DeviceKind | None
     successes: int
     end_effector: tuple[float, float, float]
+    video_stalled: bool = Field(False, description="the worker's video stopped: clutch released")
 
 
 class FrameTag(_Message):

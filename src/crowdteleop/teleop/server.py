@@ -26,7 +26,7 @@ from crowdteleop.teleop.auth import bearer_matches, token_matches
 from crowdteleop.teleop.broadcast import TickBroadcaster
 from crowdteleop.teleop.clock import FixedRateClock
 from crowdteleop.teleop.config import TeleopConfig
-from crowdteleop.teleop.dispatch import Dispatcher
+from crowdteleop.teleop.dispatch import Dispatcher, worker_video_stalled
 from crowdteleop.teleop.messages import (
     MAX_OFFER_BYTES,
     Assignment,
@@ -97,7 +97,9 @@ class TeleopServer:
         )
         self.session = await TeleopSession.create(self.config)
         await self._store_recovered(recovered)
-        self.dispatcher = Dispatcher(self.session, self.telemetry)
+        self.dispatcher = Dispatcher(
+            self.session, self.telemetry, self.config.limits.max_input_age_ms, self.peers
+        )
         self._loop_task = asyncio.create_task(self._run_loop(), name="control-loop")
 
     async def _store_recovered(self, recovered: list[Path]) -> None:
@@ -217,6 +219,9 @@ class TeleopServer:
         if self.session.board.release(peer.peer_id):
             self.session.request_end("disconnect")
             self.broadcaster.status_soon()
+        others = (other for other in self.peers if other is not peer)
+        if self.session.board.set_video_stalled(worker_video_stalled(others)):
+            self.broadcaster.status_soon()
 
     def _send_hello(self, peer: Peer) -> None:
         driver = self.session.board.driver
@@ -231,6 +236,8 @@ class TeleopServer:
                 width=self.config.video.width,
                 height=self.config.video.height,
                 controlling_device=driver.device if driver else None,
+                video_stall_ms=self.config.limits.video_stall_ms,
+                max_input_age_ms=self.config.limits.max_input_age_ms,
             )
         )
 

@@ -30,6 +30,7 @@ class SessionTelemetry:
     receiver_kbps: deque[float] = field(default_factory=lambda: deque(maxlen=50))
     errors: Counter[str] = field(default_factory=Counter)
     frames_published: int = 0
+    video_stalls: int = 0  # times the worker's page saw its video stop (clutch released)
     bitrate_kbps: float = 0.0
     _fps_mark: tuple[float, int] = field(default_factory=lambda: (time.monotonic(), 0))
     _bytes_mark: tuple[int, float] = field(default_factory=lambda: (0, time.monotonic()))
@@ -77,6 +78,7 @@ class SessionTelemetry:
             "skipped": loop.skipped,
             "late": loop.late,
             "frames_sent": self.frames_published,
+            "video_stalls": self.video_stalls,
             "fps": round(self.fps, 2),
             "bitrate_kbps": round(self.bitrate_kbps, 1),
             "rtt_ms": round(statistics.median(rtt), 2) if rtt else 0.0,

@@ -164,7 +164,14 @@ function wireControls() {
   });
   c.addEventListener("status", ({ detail }) => {
     $("driver").textContent = detail.controlling_device || "nobody";
-    if (detail.controlling_device === "phone") $("banner").className = "banner";
+    if (detail.video_stalled) {
+      phone.stallShown = true;
+      banner("error", "The video on your computer stopped, so the robot holds still. When it is "
+        + "back, let go of the hold button and press it again.");
+    } else if (phone.stallShown || detail.controlling_device === "phone") {
+      phone.stallShown = false;
+      $("banner").className = "banner";
+    }
   });
   c.addEventListener("connection", ({ detail }) => {
     $("connection").textContent = detail.state;

@@ -10,7 +10,7 @@ export const PROTOCOL_VERSION = 1;
 
 export const CLIENT_MESSAGES = {
   control: ["pose"],
-  events: ["clutch", "gripper", "reset", "start", "stop", "take_control", "ping", "pong", "latency"],
+  events: ["clutch", "gripper", "reset", "start", "stop", "take_control", "ping", "pong", "latency", "video"],
 };
 
 // LatencyReport's bounds in protocol.py: the factory keeps reports inside them.
@@ -120,9 +120,15 @@ export class MessageFactory {
   stop() { return this.request("stop"); }
   takeControl() { return { v: PROTOCOL_VERSION, type: "take_control", device: this.device }; }
   ping(id) { return { v: PROTOCOL_VERSION, type: "ping", id, client_time_ms: this.clockMs() }; }
-  // The answer to the server's ping echoes its id and clock.
+  // The answer to the server's ping echoes its id and clock, stamped with ours: the server
+  // learns how far our clock is from its own, and so how old each pose is when it arrives.
   pong(serverPing) {
-    return { v: PROTOCOL_VERSION, type: "pong", id: serverPing.id, server_time_s: serverPing.server_time_s };
+    return { v: PROTOCOL_VERSION, type: "pong", id: serverPing.id, server_time_s: serverPing.server_time_s,
+             client_time_ms: this.clockMs() };
+  }
+  // Our video stopped (no new frame for the hello's video_stall_ms) or came back.
+  videoStatus(stalled, gapMs) {
+    return { v: PROTOCOL_VERSION, type: "video", stalled: Boolean(stalled), gap_ms: Math.max(0, Math.round(gapMs)) };
   }
   // A sample over a minute is a stalled tab, not a latency: left out. Negative ones are clock
   // granularity: zero.

@@ -5,6 +5,7 @@ import { FrameMatcher, LatencyTracker } from "./latency.js";
 import { MessageFactory, ProtocolViolation } from "./protocol.js";
 
 const LATENCY_REPORT_MS = 1000;
+const STALL_CHECK_MS = 100;
 const FPS_WINDOW_FRAMES = 60;
 
 export class TeleopConnection extends EventTarget {
@@ -32,6 +33,9 @@ export class TeleopConnection extends EventTarget {
     this.framesShown = 0;
     this.firstFrameAt = null;  // wall clock (Date.now()) ms of the first frame, for benchmarks
     this.frameTimesMs = [];  // performance.now() of the latest frames, for fps
+    this.lastFrameMs = null;  // performance.now() of the latest frame shown
+    this.videoStalled = false;
+    this.stallTimer = null;
     this.stats = { refusedOutgoing: 0, ignoredIncoming: 0 };  // messages the schema refused
     this.state = { hello: null, status: null, telemetry: null, haptics: 0, saved: [],
                    episodes: [], errors: [] };
@@ -70,6 +74,7 @@ export class TeleopConnection extends EventTarget {
 
   close() {
     clearInterval(this.latencyTimer);
+    clearInterval(this.stallTimer);
     this.pc.close();
   }
 
@@ -116,6 +121,8 @@ export class TeleopConnection extends EventTarget {
     if (!("requestVideoFrameCallback" in HTMLVideoElement.prototype)) return;
     const onFrame = (nowMs, metadata) => {
       if (this.framesShown === 0) this.firstFrameAt = Date.now();
+      if (this.videoStalled) this.#videoStall(false, performance.now() - this.lastFrameMs);
+      this.lastFrameMs = performance.now();
       this.framesShown += 1;
       this.frameTimesMs.push(nowMs);
       if (this.frameTimesMs.length > FPS_WINDOW_FRAMES) this.frameTimesMs.shift();
@@ -126,6 +133,20 @@ export class TeleopConnection extends EventTarget {
       videoElement.requestVideoFrameCallback(onFrame);
     };
     videoElement.requestVideoFrameCallback(onFrame);
+    // The worker must not drive blind: video that stops (a frozen network, a hidden tab)
+    // releases the clutch on the server until the device lets go and presses again.
+    this.stallTimer = setInterval(() => {
+      const limitMs = (this.state.hello && this.state.hello.video_stall_ms) || 1000;
+      if (this.lastFrameMs === null || this.videoStalled) return;
+      const gapMs = performance.now() - this.lastFrameMs;
+      if (gapMs > limitMs) this.#videoStall(true, gapMs);
+    }, STALL_CHECK_MS);
+  }
+
+  #videoStall(stalled, gapMs) {
+    this.videoStalled = stalled;
+    this.#send(this.messages.videoStatus(stalled, gapMs));
+    this.#emit("videostall", { stalled, gapMs });
   }
 
   fps() {

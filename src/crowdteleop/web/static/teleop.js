@@ -194,6 +194,12 @@ function showStatus() {
     $("stage").textContent = s.message || s.stage || "–";
     $("driver").textContent = s.controlling_device || "nobody";
   });
+  c.addEventListener("videostall", ({ detail }) => {
+    if (detail.stalled) {
+      banner("error", "Your video stopped, so the robot stopped: nothing you do moves it until "
+        + "the picture is back. Then let go of the clutch and press it again.");
+    } else clearBanner();
+  });
   c.addEventListener("saved", ({ detail }) => {
     if (detail.outcome === "success") banner("info", "Demonstration saved. Thank you!");
     heartbeat();
