@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 
 import pytest
 
@@ -18,17 +19,22 @@ from tests.fixtures.coord import ADMIN, Api, FakeLauncher, coord_config, in_proc
 pytestmark = pytest.mark.filterwarnings("ignore:Using `httpx`")
 
 
+def ready_session(client, launcher):
+    """A worker joined and their session ready: (session id, its teleop server's config)."""
+    api = Api(client)
+    token = api.join()["worker_token"]
+    sid = api.new_session(token)["session_id"]
+    api.wait_state(token, sid, "ready")
+    return sid, launcher.handles[sid].config
+
+
 @pytest.fixture
 def reporting(tmp_path, database_url):
     """A coordinator on each database, a ready session, and `post(raw_json_fields)`."""
     launcher = FakeLauncher()
     config = coord_config(tmp_path, database_url, capacity=1)
     with in_process_app(config, launcher) as client:
-        api = Api(client)
-        token = api.join()["worker_token"]
-        sid = api.new_session(token)["session_id"]
-        api.wait_state(token, sid, "ready")
-        teleop = launcher.handles[sid].config
+        sid, teleop = ready_session(client, launcher)
         headers = {
             "Authorization": f"Bearer {teleop.report_token}",
             "Content-Type": "application/json",
@@ -52,7 +58,7 @@ def reporting(tmp_path, database_url):
             body = "{" + ",".join(f'"{k}": {v}' for k, v in fields.items()) + "}"
             return client.post("/internal/episodes", content=body, headers=headers)
 
-        yield client, api, post
+        yield client, Api(client), post
 
 
 def _refused(response, field: str) -> None:
@@ -94,3 +100,38 @@ def test_non_finite_or_absurd_durations_are_refused_and_statistics_stay_numbers(
     assert figures == [3.5, 3.5, 3.0, 4.0]
     assert all(isinstance(x, float) and math.isfinite(x) for x in figures)
     assert summary["successes"] == summary["episodes"] == 2
+
+
+def _metric(client, name: str) -> float:
+    text = client.get("/metrics", headers={"Authorization": f"Bearer {ADMIN}"}).text
+    return next(float(line.split()[-1]) for line in text.splitlines() if line.startswith(name))
+
+
+def test_metrics_show_demos_of_the_last_hour_and_the_spool_backlog(tmp_path):
+    """What an operator watches: successful demonstrations an hour (failed ones left out) and
+    the episodes the teleop servers' spools still hold for the object store (from /health)."""
+    launcher = FakeLauncher()
+    config = coord_config(tmp_path, capacity=1, health_interval_s=0.2)
+    with in_process_app(config, launcher) as client:
+        sid, teleop = ready_session(client, launcher)
+        headers = {"Authorization": f"Bearer {teleop.report_token}"}
+        for number, outcome in enumerate(("success", "timeout", "success"), start=1):
+            report = {
+                "session_id": sid,
+                "worker_id": teleop.worker_id,
+                "episode": number,
+                "episode_id": f"ep{number}",
+                "outcome": outcome,
+                "steps": 70,
+                "duration_s": 3.5,
+                "uri": "file:///data/ep.hdf5",
+                "telemetry": {},
+            }
+            assert client.post("/internal/episodes", json=report, headers=headers).is_success
+        assert _metric(client, "crowdteleop_demos_last_hour") == 2
+        assert _metric(client, "crowdteleop_spool_pending") == 0
+        launcher.handles[sid].spool_pending = 3  # the object store is away
+        deadline = time.monotonic() + 10
+        while _metric(client, "crowdteleop_spool_pending") != 3 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert _metric(client, "crowdteleop_spool_pending") == 3

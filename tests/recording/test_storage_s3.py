@@ -124,6 +124,7 @@ def test_server_stopped_mid_run_every_demonstration_arrives_exactly_once(rig, tm
         uri = store_episode(_finished(episodes[3], 3), storage, True, {}, saved_when="spooled")
         assert uri == f"s3://{BUCKET}/run/success/lift-3.hdf5"
         assert storage.pending() == ["success/lift-2.hdf5", "success/lift-3.hdf5"]
+        assert storage.pending_count() == 2, "the backlog the teleop server's /health reports"
         assert storage.failures >= 1 and "cannot reach" in storage.last_error
         spooled = {
             key: _sha(e.data.read_bytes())

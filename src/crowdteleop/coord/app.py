@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from collections.abc import AsyncIterator
 from typing import Any
 
@@ -112,6 +113,9 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
             metrics.sessions.labels(state=state).set(sum(s.state == state for s in live))
         metrics.capacity.set(config.capacity)
         metrics.spares.set(sum(len(ready) for ready in coordinator.spares.ready.values()))
+        recent = await coordinator.store.episodes_since(time.time() - 3600)
+        metrics.demos_last_hour.set(sum(e.outcome == "success" for e in recent))
+        metrics.spool_pending.set(sum(s.spool_pending for s in coordinator.pool.slots.values()))
         return Response(metrics.exposition(), media_type="text/plain; version=0.0.4")
 
     return app

@@ -14,17 +14,23 @@ import aiohttp
 
 from crowdteleop.coord.launcher import TeleopHandle
 from crowdteleop.coord.service import Coordinator
+from crowdteleop.teleop.messages import TeleopHealth
 
 log = logging.getLogger(__name__)
 
 
-async def _healthy(http: aiohttp.ClientSession, handle: TeleopHandle, timeout_s: float) -> bool:
+async def _health(
+    http: aiohttp.ClientSession, handle: TeleopHandle, timeout_s: float
+) -> TeleopHealth | None:
+    """The server's health, or None without a good answer in time."""
     try:
         timeout = aiohttp.ClientTimeout(total=timeout_s)
         async with http.get(f"{handle.url}/health", timeout=timeout) as response:
-            return response.status == 200
-    except (aiohttp.ClientError, TimeoutError, ValueError):
-        return False
+            if response.status != 200:
+                return None
+            return TeleopHealth.model_validate_json(await response.read())
+    except (aiohttp.ClientError, TimeoutError, ValueError):  # ValidationError is a ValueError
+        return None
 
 
 async def probe_once(coordinator: Coordinator, http: aiohttp.ClientSession) -> list[str]:
@@ -32,13 +38,14 @@ async def probe_once(coordinator: Coordinator, http: aiohttp.ClientSession) -> l
     config = coordinator.config
     slots = [slot for slot in coordinator.pool.slots.values() if slot.handle is not None]
     answers = await asyncio.gather(
-        *(_healthy(http, slot.handle, config.health_timeout_s) for slot in slots if slot.handle)
+        *(_health(http, slot.handle, config.health_timeout_s) for slot in slots if slot.handle)
     )
     now = time.monotonic()
     hung = []
-    for slot, healthy in zip(slots, answers, strict=True):
-        if healthy:
+    for slot, health in zip(slots, answers, strict=True):
+        if health is not None:
             slot.healthy_at = now
+            slot.spool_pending = health.spool_pending
         elif now - slot.healthy_at > config.unresponsive_after_s:
             silent = now - slot.healthy_at
             why = f"the teleop server stopped responding ({silent:.0f} s without an answer)"

@@ -67,6 +67,16 @@ class CoordMetrics:
         self.spares = Gauge(
             "crowdteleop_spare_servers", "Warm spare teleop servers ready", registry=self.registry
         )
+        self.demos_last_hour = Gauge(
+            "crowdteleop_demos_last_hour",
+            "Successful demonstrations reported in the last hour",
+            registry=self.registry,
+        )
+        self.spool_pending = Gauge(
+            "crowdteleop_spool_pending",
+            "Episodes in the teleop servers' spools waiting for the object store (last probe)",
+            registry=self.registry,
+        )
 
     def refused(self, reason: Refusal) -> None:
         self.refusals.labels(reason=reason).inc()

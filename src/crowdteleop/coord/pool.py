@@ -19,6 +19,7 @@ class Slot:
     reserved_at: float = field(default_factory=time.time)
     handle: TeleopHandle | None = None  # None while the server is starting
     healthy_at: float = field(default_factory=time.monotonic)  # its last good health probe
+    spool_pending: int = 0  # episodes its spool holds for the object store, at that probe
 
 
 class TeleopPool:

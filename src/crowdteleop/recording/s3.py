@@ -117,6 +117,9 @@ class S3Storage:
     def wait_durable(self, key: str, timeout_s: float) -> None:
         """``put`` returns after the store confirmed size and digests: nothing to wait for."""
 
+    def pending_count(self) -> int:
+        return 0  # a put here is final
+
     def close(self) -> None:
         """boto3's client needs no closing; here for the storage interface."""
 

@@ -147,6 +147,9 @@ class SpooledStorage:
                 self._changed.wait(min(remaining, 0.2))  # 0.2: another process may upload it
         return True
 
+    def pending_count(self) -> int:
+        return len(self.pending_entries())
+
     def wait_durable(self, key: str, timeout_s: float) -> None:
         """The store confirmed ``key`` within ``timeout_s``, or ``StorageUnavailableError``: the
         object then stays spooled and is uploaded when the store is back."""

@@ -69,6 +69,11 @@ class EpisodeStorage(Protocol):
         ``put`` is already final returns at once; a spool waits for its upload."""
         ...
 
+    def pending_count(self) -> int:
+        """Objects waiting to reach their final store: a spool's backlog (0 for a store
+        whose ``put`` is already final)."""
+        ...
+
     def close(self) -> None:
         """Stop background work (a spool's upload thread); pending objects stay on disk."""
         ...
@@ -92,6 +97,9 @@ class LocalDirectoryStorage:
 
     def wait_durable(self, key: str, timeout_s: float) -> None:
         """``put`` fsync'd the object and its directories: nothing to wait for."""
+
+    def pending_count(self) -> int:
+        return 0  # a put here is final
 
     def close(self) -> None:
         """Nothing runs in the background."""

@@ -129,3 +129,21 @@ def _check_json(value: Any, depth: int) -> None:
             raise ValueError(f"nested more than {MAX_TELEMETRY_DEPTH} deep")
         for item in value.values() if isinstance(value, dict) else value:
             _check_json(item, depth - 1)
+
+
+class TeleopHealth(BaseModel):
+    """A teleop server's ``GET /health``: the coordinator's liveness probe reads it (and sums
+    ``spool_pending`` into ``/metrics``)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    status: Literal["ok"] = "ok"
+    session_id: str
+    peers: int
+    state: str
+    episodes: int
+    successes: int
+    ticks: int
+    spool_pending: int = Field(
+        0, ge=0, description="episodes in the local spool waiting for the object store"
+    )

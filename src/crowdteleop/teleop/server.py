@@ -32,6 +32,7 @@ from crowdteleop.teleop.messages import (
     Assignment,
     OfferAnswer,
     OfferRequest,
+    TeleopHealth,
     missing_offer_sections,
 )
 from crowdteleop.teleop.origin import origin_allowed
@@ -169,17 +170,16 @@ class TeleopServer:
         return web.json_response(body.model_dump())
 
     async def handle_health(self, _request: web.Request) -> web.Response:
-        return web.json_response(
-            {
-                "status": "ok",
-                "session_id": self.config.session_id,
-                "peers": len(self.peers),
-                "state": self.session.tracker.state,
-                "episodes": self.session.tracker.number,
-                "successes": self.session.tracker.successes,
-                "ticks": self.clock.stats.ticks,
-            }
+        health = TeleopHealth(
+            session_id=self.config.session_id,
+            peers=len(self.peers),
+            state=self.session.tracker.state,
+            episodes=self.session.tracker.number,
+            successes=self.session.tracker.successes,
+            ticks=self.clock.stats.ticks,
+            spool_pending=await asyncio.to_thread(self.session.storage.pending_count),
         )
+        return web.json_response(health.model_dump(mode="json"))
 
     async def handle_telemetry(self, request: web.Request) -> web.Response:
         if not bearer_matches(request, self.config.admin_token):
