@@ -45,6 +45,9 @@ class RunResult:
     sim: str
     mean_return: float | None  # None for a BC evaluation, which counts successes only
     success_rate: float
+    steps: int | None = None  # PPO: environment steps trained
+    seconds: float | None = None  # PPO: wall time trained
+    train_return: float | None = None  # PPO: mean return of its last training episodes
 
 
 def collect(roots: list[Path], sim: str = "ours") -> list[RunResult]:
@@ -70,9 +73,22 @@ def collect(roots: list[Path], sim: str = "ours") -> list[RunResult]:
                     sim,
                     summary.get("mean_return"),
                     float(summary["success_rate"]),
+                    *_training(run),
                 )
             )
     return results
+
+
+def _training(run: Path) -> tuple[int | None, float | None, float | None]:
+    """A PPO run's steps and seconds (``state.json``) and the mean return of its last
+    training episodes (sb3's ``rollout/ep_rew_mean``, demonstration starts included)."""
+    state_path, progress_path = run / "state.json", run / "progress.csv"
+    if not state_path.exists():
+        return None, None, None
+    state = json.loads(state_path.read_text())
+    rows = list(csv.DictReader(progress_path.open())) if progress_path.exists() else []
+    returns = [float(r["rollout/ep_rew_mean"]) for r in rows if r.get("rollout/ep_rew_mean")]
+    return int(state["steps"]), float(state["seconds"]), (returns[-1] if returns else None)
 
 
 @dataclass(frozen=True)
@@ -125,6 +141,32 @@ def markdown(results: list[RunResult]) -> str:
         lines.append(
             f"| {task} (paper) | demo-guided PPO | "
             + " | ".join(paper.get(str(c), "") for c in counts)
+            + " |"
+        )
+    return "\n".join(lines) + "\n" + training_markdown(results)
+
+
+def training_markdown(results: list[RunResult]) -> str:
+    """PPO's training per task and demonstration count: steps, speed, and the return of its
+    last training episodes, where (with demonstrations) most start from a demo's state."""
+    ppo = [r for r in results if r.algo == "ppo" and r.steps is not None]
+    if not ppo:
+        return ""
+    lines = [
+        "",
+        "| task | demos | runs | env steps per run | steps / s | training return at the end |",
+        "|---|---|---|---|---|---|",
+    ]
+    groups: dict[tuple[str, int], list[RunResult]] = defaultdict(list)
+    for result in ppo:
+        groups[(result.task, result.demos)].append(result)
+    for (task, demos), runs in sorted(groups.items()):
+        steps = [float(r.steps or 0) for r in runs]
+        rates = [float(r.steps or 0) / max(1e-9, r.seconds or 0.0) for r in runs]
+        returns = [r.train_return for r in runs if r.train_return is not None]
+        lines.append(
+            f"| {task} | {demos} | {len(runs)} | {np.mean(steps):,.0f} | {np.mean(rates):.0f} | "
+            + (f"{np.mean(returns):.1f} ± {np.std(returns):.1f}" if returns else "-")
             + " |"
         )
     return "\n".join(lines) + "\n"
