@@ -9,6 +9,7 @@ import json
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -173,8 +174,9 @@ def training_markdown(results: list[RunResult]) -> str:
 
 
 def plot_curves(results: list[RunResult], output: Path) -> None:
-    """Per task, PPO's success rate from normal resets against environment steps: the mean
-    over seeds per demonstration count, each seed faint behind it."""
+    """Per task (columns), PPO against environment steps: the success rate from normal
+    resets (top) and the mean return of the training episodes, demonstration starts included
+    (bottom); the mean over seeds per demonstration count, each seed faint behind it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -184,29 +186,42 @@ def plot_curves(results: list[RunResult], output: Path) -> None:
     tasks = sorted({r.task for r in ppo})
     if not tasks:
         raise ValueError("no PPO runs with curves to plot")
-    fig, axes = plt.subplots(1, len(tasks), figsize=(6 * len(tasks), 4), squeeze=False)
-    for axis, task in zip(axes[0], tasks, strict=True):
-        by_demos: dict[int, list[Curve]] = defaultdict(list)
-        for run in (r for r in ppo if r.task == task):
-            rows = list(csv.DictReader((run.path / "curve.csv").open()))
-            steps = np.array([float(row["steps"]) for row in rows])
-            success = np.array([float(row["success_rate"]) for row in rows])
-            by_demos[run.demos].append((steps, success))
-        for index, (demos, curves) in enumerate(sorted(by_demos.items())):
-            color = f"C{index}"
-            for steps, success in curves:
-                axis.plot(steps, success, color=color, alpha=0.25, linewidth=0.8)
-            length = min(len(s) for s, _ in curves)
-            mean = np.mean([success[:length] for _, success in curves], axis=0)
-            label = f"{demos} demos" if demos else "pure RL"
-            axis.plot(curves[0][0][:length], mean, color=color, label=f"{label} (n={len(curves)})")
-        axis.set_title(f"{task}: demonstration-guided PPO")
-        axis.set_xlabel("environment steps")
-        axis.set_ylabel("success rate, normal resets (100 steps)")
-        axis.set_ylim(-0.02, 1.02)
-        axis.grid(alpha=0.3)
-        axis.legend()
+    fig, axes = plt.subplots(2, len(tasks), figsize=(6 * len(tasks), 7.5), squeeze=False)
+    panels = (
+        ("curve.csv", "steps", "success_rate", "success rate, normal resets (100 steps)"),
+        ("progress.csv", "time/total_timesteps", "rollout/ep_rew_mean", "training return"),
+    )
+    for row, (file, x_key, y_key, label) in enumerate(panels):
+        for axis, task in zip(axes[row], tasks, strict=True):
+            runs = [r for r in ppo if r.task == task]
+            _plot_panel(axis, runs, file, x_key, y_key)
+            axis.set_title(f"{task}: demonstration-guided PPO")
+            axis.set_xlabel("environment steps")
+            axis.set_ylabel(label)
+            axis.grid(alpha=0.3)
+            axis.legend(fontsize=8)
+        if row == 0:
+            for axis in axes[0]:
+                axis.set_ylim(-0.02, 1.02)
     fig.tight_layout()
     output.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(output, dpi=110)
     plt.close(fig)
+
+
+def _plot_panel(axis: Any, runs: list[RunResult], file: str, x_key: str, y_key: str) -> None:
+    by_demos: dict[int, list[Curve]] = defaultdict(list)
+    for run in runs:
+        path = run.path / file
+        rows = [r for r in csv.DictReader(path.open()) if r.get(y_key)] if path.exists() else []
+        if rows:
+            x = np.array([float(r[x_key]) for r in rows])
+            by_demos[run.demos].append((x, np.array([float(r[y_key]) for r in rows])))
+    for index, (demos, curves) in enumerate(sorted(by_demos.items())):
+        color = f"C{index}"
+        for x, y in curves:
+            axis.plot(x, y, color=color, alpha=0.25, linewidth=0.8)
+        length = min(len(x) for x, _ in curves)
+        mean = np.mean([y[:length] for _, y in curves], axis=0)
+        label = f"{demos} demos" if demos else "pure RL"
+        axis.plot(curves[0][0][:length], mean, color=color, label=f"{label} (n={len(curves)})")
