@@ -82,3 +82,33 @@ def test_demos_from_two_simulation_configs_are_refused():
     b = DemoTrajectory("b", b.states, b.controller_states, b.actions, "", {"task": "x"}, None)
     with pytest.raises(LearnDataError, match="different sim_configs"):
         DemoStates([a, b])
+
+
+def test_demos_recorded_under_another_install_still_restore(demos):
+    """A dataset trained on elsewhere: its model_file names the recording machine's paths."""
+    import dataclasses
+
+    moved = DemoStates(
+        [
+            dataclasses.replace(
+                demo,
+                model_xml=demo.model_xml.replace(
+                    demo.model_xml.split("site-packages/")[0].split('file="')[-1],
+                    "/home/someone/env/lib/python3.12/",
+                ),
+            )
+            for demo in demos.demos
+        ]
+    )
+    assert moved.demos[0].model_xml != demos.demos[0].model_xml
+    env = SimEnv(EnvSettings(sim_config=moved.sim_config), moved)
+    try:
+        env.reset(options={"start": StartState(0, 5)})
+        np.testing.assert_array_equal(env.sim.get_state(), moved.demos[0].states[5])
+    finally:
+        env.close()
+    other = DemoStates(
+        [dataclasses.replace(demos.demos[0], model_xml=demos.demos[0].model_xml + "<!-- -->")]
+    )
+    with pytest.raises(ValueError, match="no longer builds the model"):
+        SimEnv(EnvSettings(sim_config=other.sim_config), other)

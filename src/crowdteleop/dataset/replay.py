@@ -24,6 +24,7 @@ import numpy.typing as npt
 from crowdteleop.dataset.files import DatasetError, open_dataset
 from crowdteleop.recording.episode_file import CorruptEpisodeError, Episode, read_episode
 from crowdteleop.recording.metadata import EpisodeMetadata
+from crowdteleop.sim.mjcf import same_model
 
 if TYPE_CHECKING:  # the interface's types load MuJoCo; reading a dataset should not
     from crowdteleop.sim.interface import Simulation
@@ -163,7 +164,7 @@ class ReplayChecker:
         if key not in self._sims:
             self._sims[key] = make_simulation(SimConfig(**raw))
         sim = self._sims[key]
-        if sim.mjcf_xml() != demo.model_xml:
+        if not same_model(demo.model_xml, sim.mjcf_xml()):
             raise DatasetError(
                 f"{demo.name}: its sim_config no longer builds the recorded model (another "
                 "crowdteleop or robosuite version?); replay it with the versions it names"

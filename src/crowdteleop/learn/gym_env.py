@@ -22,6 +22,7 @@ from gymnasium import spaces
 from crowdteleop.learn.config import STOCK_OBS_KEYS
 from crowdteleop.learn.demo_states import DemoStates, StartState
 from crowdteleop.sim.config import SimConfig
+from crowdteleop.sim.mjcf import same_model
 
 PAPER_HORIZON = 100  # the paper's myopic horizon for training episodes
 
@@ -62,7 +63,7 @@ class SimEnv(gym.Env[Any, npt.NDArray[np.float32]]):
         self.demos = demos
         self.render_mode = render_mode
         self.sim = make_simulation(SimConfig(**settings.sim_config))
-        if demos is not None and self.sim.mjcf_xml() != demos.demos[0].model_xml:
+        if demos is not None and not same_model(demos.demos[0].model_xml, self.sim.mjcf_xml()):
             self.sim.close()
             raise ValueError(
                 "this crowdteleop / robosuite no longer builds the model the demonstrations were "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import xml.etree.ElementTree as ET
 
 
@@ -56,3 +57,19 @@ def without_free_joints(xml: str) -> str:
             if joint.tag == "freejoint" or joint.get("type") == "free":
                 body.remove(joint)
     return ET.tostring(root, encoding="unicode")
+
+
+_ASSET_FILE = re.compile(r'(\bfile=")[^"]*/site-packages/')
+
+
+def portable(xml: str) -> str:
+    """The model with each asset path cut to where it lies inside its installed package
+    (``robosuite/models/assets/...``): the same scene recorded on one machine or venv and
+    rebuilt on another then compares equal, as robosuite's own ``edit_model_xml`` rewrites a
+    recorded ``model_file``'s paths to the local install before loading it."""
+    return _ASSET_FILE.sub(r"\1", xml)
+
+
+def same_model(recorded: str, rebuilt: str) -> bool:
+    """Whether a rebuilt scene is the one a recording names, wherever each was installed."""
+    return recorded == rebuilt or portable(recorded) == portable(rebuilt)
