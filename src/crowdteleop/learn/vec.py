@@ -31,6 +31,10 @@ def make_vec_env(
         partial(make_env, settings, demos) for _ in range(n_envs)
     ]
     venv: VecEnv
+    if kind != "dummy":
+        # one built here first: a bad dataset or config fails with its own message, not as a
+        # worker process dying ("connection reset") or a remote actor's traceback
+        make_env(settings, demos).close()
     if kind == "ray":
         from crowdteleop.learn.ray_vec import RayVecEnv
 
