@@ -46,6 +46,20 @@ def record(task: str, demos: int, directory: Path) -> dict[str, float]:
     return {"attempts": seed, "successes": successes, "seconds": time.perf_counter() - started}
 
 
+def robosuite_lift_step_ms() -> float:
+    """Plain robosuite's Lift step, as benchmarks/sim.py measures it (Sawyer, its default
+    OSC_POSE, median of 5 x 100 steps): these VMs differ ~2x in speed from day to day, so
+    every run states its own."""
+    from _measure import BenchOptions, TaskBench, median
+
+    bench = TaskBench("lift", BenchOptions(memory=False))
+    try:
+        bench.robosuite_step()
+    finally:
+        bench.close()
+    return median(bench.result.robosuite_step_ms) or 0.0
+
+
 def run(command: list[str], log: Path) -> float:
     started = time.perf_counter()
     log.parent.mkdir(parents=True, exist_ok=True)
@@ -72,7 +86,8 @@ def main(
     plot: Path = Path("benchmarks/learning-curves.png"),
 ) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    timings: dict[str, object] = {}
+    timings: dict[str, object] = {"robosuite lift step ms": robosuite_lift_step_ms()}
+    print(f"plain robosuite Lift step: {timings['robosuite lift step ms']:.2f} ms", flush=True)
     datasets = {}
     for task in tasks.split(","):
         dataset = out / f"{task}.hdf5"

@@ -8,7 +8,7 @@ import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import typer
 from rich.console import Console
@@ -36,23 +36,24 @@ def clear_errors() -> Iterator[None]:
         raise typer.Exit(2) from error
 
 
-@contextmanager
-def _progress(description: str) -> Iterator[Callable[[int, int], None]]:
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeRemainingColumn,
-    )
+def progress_columns(*extra: Any) -> tuple[Any, ...]:
+    """The commands' progress bar: what, bar, done / total, time left, then ``extra``."""
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 
-    columns = (
+    return (
         TextColumn("{task.description}"),
         BarColumn(),
         MofNCompleteColumn(),
         TimeRemainingColumn(),
+        *extra,
     )
-    with Progress(*columns, console=console, transient=False) as bar:
+
+
+@contextmanager
+def _progress(description: str) -> Iterator[Callable[[int, int], None]]:
+    from rich.progress import Progress
+
+    with Progress(*progress_columns(), console=console, transient=False) as bar:
         job = bar.add_task(description, total=None)
 
         def update(done: int, total: int) -> None:

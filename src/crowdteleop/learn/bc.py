@@ -53,6 +53,7 @@ class TrainReport:
     seconds: float = 0.0
     train_demos: int = 0
     valid_demos: int = 0
+    task: str = ""  # the dataset's, for run.json
 
 
 @dataclass(frozen=True)
@@ -116,7 +117,9 @@ def train_bc(
     )
     output.mkdir(parents=True, exist_ok=True)
     log_path = output / "log.csv"
-    report = TrainReport(output / "model.pt", log_path, [], 0.0, len(data.train), len(data.valid))
+    report = TrainReport(
+        output / "model.pt", log_path, [], 0.0, len(data.train), len(data.valid), data.task
+    )
     progress = _Progress()
     if resume and (output / RESUME_FILE).exists():
         progress = _restore(output / RESUME_FILE, net, optimizer, rng)
@@ -163,9 +166,7 @@ def train_bc(
         norm,
         {"epoch": config.epochs, "train_seconds": seconds},
     )
-    return TrainReport(
-        report.checkpoint, log_path, report.epochs, seconds, report.train_demos, report.valid_demos
-    )
+    return replace(report, seconds=seconds)
 
 
 RESUME_FILE = "resume.pt"

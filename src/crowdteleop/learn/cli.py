@@ -11,7 +11,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from crowdteleop.dataset.cli import clear_errors
+from crowdteleop.dataset.cli import clear_errors, progress_columns
 from crowdteleop.learn.actions import ActionKey
 from crowdteleop.learn.cli_rl import eval_ppo, rl
 from crowdteleop.learn.config import BCConfig, Head
@@ -84,23 +84,11 @@ def bc(
 def _train_bc_seed(
     dataset: Path, output: Path, config: BCConfig, threads: int, resume: bool
 ) -> None:
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeRemainingColumn,
-    )
+    from rich.progress import Progress, TextColumn
 
     from crowdteleop.learn.bc import EpochLog, train_bc
 
-    columns = (
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeRemainingColumn(),
-        TextColumn("{task.fields[loss]}"),
-    )
+    columns = progress_columns(TextColumn("{task.fields[loss]}"))
     with Progress(*columns, console=console) as bar:
         job = bar.add_task(f"seed {config.seed}: epochs", total=config.epochs, loss="")
 
@@ -109,7 +97,9 @@ def _train_bc_seed(
             bar.update(job, completed=row.epoch, loss=f"loss {row.train_loss:.3f}{valid}")
 
         report = train_bc(dataset, output, config, advance, threads, resume)
-    _write_run_info(output, dataset, report.train_demos, config.seed)
+    info = {"algo": "bc", "task": report.task, "demos": report.train_demos}
+    info |= {"seed": config.seed, "dataset": str(dataset)}
+    (output / "run.json").write_text(json.dumps(info, indent=2))  # for `learn table`
     if not report.epochs:
         console.print(f"{report.checkpoint}: already trained for {config.epochs} epochs")
         return
@@ -120,17 +110,6 @@ def _train_bc_seed(
         + ("" if last.valid_loss is None else f", valid {last.valid_loss:.3f}")
         + f"; log: {report.log}"
     )
-
-
-def _write_run_info(output: Path, dataset: Path, demos: int, seed: int) -> None:
-    """``run.json``, as `learn rl` writes it, for `learn table`."""
-    import h5py
-
-    with h5py.File(dataset, "r") as file:
-        first = file["data"][sorted(file["data"])[0]]
-        task = json.loads(first.attrs.get("metadata", "{}")).get("task", "")
-    info = {"algo": "bc", "task": task, "demos": demos, "seed": seed, "dataset": str(dataset)}
-    (output / "run.json").write_text(json.dumps(info, indent=2))
 
 
 @app.command("eval")

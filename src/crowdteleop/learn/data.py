@@ -67,7 +67,7 @@ def load_learn_data(
     without ``action_key``)."""
     with open_learn_dataset(path) as file:
         data = file["data"]
-        first = data[_demo_names(data)[0]]
+        first = data[demo_names(data)[0]]
         if "obs" not in first:
             raise LearnDataError(
                 f"{path} has no observations (data/demo_*/obs); rebuild it with "
@@ -84,29 +84,33 @@ def load_learn_data(
                 "build` (it writes actions_abs for osc and ik-velocity demos)"
             )
         train = [
-            _read_demo(data[name], obs_keys, action_key) for name in _members(file, train_filter)
+            _read_demo(data[name], obs_keys, action_key)
+            for name in filter_members(file, train_filter)
         ]
         if not train:
             raise LearnDataError(f"{path}: filter key {train_filter!r} lists no demos")
         valid = (
-            [_read_demo(data[name], obs_keys, action_key) for name in _members(file, valid_filter)]
+            [
+                _read_demo(data[name], obs_keys, action_key)
+                for name in filter_members(file, valid_filter)
+            ]
             if valid_filter is not None and f"mask/{valid_filter}" in file
             else []
         )
-        metadata = json.loads(_text(first.attrs.get("metadata", "{}")))
+        metadata = json.loads(attr_text(first.attrs.get("metadata", "{}")))
         return LearnData(
             path=Path(path),
             obs_keys=obs_keys,
             obs_dims=tuple(int(first["obs"][key].shape[1]) for key in obs_keys),
             train=train,
             valid=valid,
-            env_args=json.loads(_text(data.attrs.get("env_args", "{}"))),
+            env_args=json.loads(attr_text(data.attrs.get("env_args", "{}"))),
             sim_config=dict(metadata.get("sim_config") or {}),
-            task=_text(first.attrs.get("task", metadata.get("task", ""))),
-            controller=_text(first.attrs.get("controller", metadata.get("controller") or "")),
+            task=attr_text(first.attrs.get("task", metadata.get("task", ""))),
+            controller=attr_text(first.attrs.get("controller", metadata.get("controller") or "")),
             action_key=action_key,
             abs_controller_configs=json.loads(
-                _text(data.attrs.get("actions_abs_controller_configs", "null"))
+                attr_text(data.attrs.get("actions_abs_controller_configs", "null"))
             ),
         )
 
@@ -123,18 +127,20 @@ def open_learn_dataset(path: Path) -> h5py.File:
     return file
 
 
-def _demo_names(data: h5py.Group) -> list[str]:
+def demo_names(data: h5py.Group) -> list[str]:
+    """``data/demo_<k>`` names by their number."""
     return sorted(data, key=lambda name: int(name.rpartition("_")[2]))
 
 
-def _members(file: h5py.File, filter_key: str | None) -> list[str]:
+def filter_members(file: h5py.File, filter_key: str | None) -> list[str]:
+    """The demos ``mask/<filter_key>`` lists (none for None); an unknown key is refused."""
     if filter_key is None:
         return []
     if f"mask/{filter_key}" not in file:
         raise LearnDataError(
             f"no filter key {filter_key!r}; the dataset has {sorted(file.get('mask', {}))}"
         )
-    return [_text(name) for name in file[f"mask/{filter_key}"][()]]
+    return [attr_text(name) for name in file[f"mask/{filter_key}"][()]]
 
 
 def _read_demo(group: h5py.Group, obs_keys: tuple[str, ...], action_key: ActionKey) -> DemoArrays:
@@ -149,7 +155,8 @@ def _read_demo(group: h5py.Group, obs_keys: tuple[str, ...], action_key: ActionK
     return DemoArrays(group.name.rpartition("/")[2], obs, actions)
 
 
-def _text(value: Any) -> str:
+def attr_text(value: Any) -> str:
+    """An HDF5 attribute as text (h5py gives bytes or str)."""
     return value.decode() if isinstance(value, bytes) else str(value)
 
 

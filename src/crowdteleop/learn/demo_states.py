@@ -20,7 +20,13 @@ import h5py
 import numpy as np
 import numpy.typing as npt
 
-from crowdteleop.learn.data import LearnDataError, open_learn_dataset
+from crowdteleop.learn.data import (
+    LearnDataError,
+    attr_text,
+    demo_names,
+    filter_members,
+    open_learn_dataset,
+)
 from crowdteleop.sim.config import SimConfig
 
 Array = npt.NDArray[np.float64]
@@ -82,7 +88,7 @@ def load_demo_states(
     """The first ``limit`` demos (all when None) of a built dataset, in the order of
     ``mask/<filter_key>`` (or of their numbers), with what restoring their states needs."""
     with open_learn_dataset(path) as file:
-        names = _names(file, filter_key)
+        names = filter_members(file, filter_key) if filter_key else demo_names(file["data"])
         if limit is not None:
             if limit > len(names):
                 raise LearnDataError(
@@ -93,21 +99,11 @@ def load_demo_states(
         return DemoStates([_trajectory(file["data"][name], name) for name in names])
 
 
-def _names(file: h5py.File, filter_key: str | None) -> list[str]:
-    if filter_key is None:
-        return sorted(file["data"], key=lambda name: int(name.rpartition("_")[2]))
-    if f"mask/{filter_key}" not in file:
-        raise LearnDataError(
-            f"no filter key {filter_key!r}; the dataset has {sorted(file.get('mask', {}))}"
-        )
-    return [n.decode() if isinstance(n, bytes) else str(n) for n in file[f"mask/{filter_key}"][()]]
-
-
 def _trajectory(group: h5py.Group, name: str) -> DemoTrajectory:
     for key in ("states", "actions"):
         if key not in group:
             raise LearnDataError(f"{name} has no {key!r}: it cannot start episodes")
-    metadata = json.loads(_text(group.attrs.get("metadata", "{}")))
+    metadata = json.loads(attr_text(group.attrs.get("metadata", "{}")))
     if not metadata.get("sim_config"):
         raise LearnDataError(f"{name} recorded no sim_config: its states cannot be restored")
     states = np.asarray(group["states"][()], dtype=np.float64)
@@ -121,12 +117,8 @@ def _trajectory(group: h5py.Group, name: str) -> DemoTrajectory:
         states=states,
         controller_states=controller.reshape(len(states), -1),
         actions=np.asarray(group["actions"][()], dtype=np.float64),
-        model_xml=_text(group.attrs.get("model_file", "")),
+        model_xml=attr_text(group.attrs.get("model_file", "")),
         # as it rebuilds now: keys added since take the values they had then
         sim_config=SimConfig.from_recorded(metadata["sim_config"]).model_dump(mode="json"),
         reset_seed=metadata.get("reset_seed"),
     )
-
-
-def _text(value: Any) -> str:
-    return value.decode() if isinstance(value, bytes) else str(value)

@@ -11,7 +11,7 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from crowdteleop.learn.rollout import plain_env_kwargs
+from crowdteleop.learn.rollout import make_plain_robosuite, reseed_plain
 
 EVAL_HORIZON = 1000  # the paper's "maximum possible return ... is 1000"
 
@@ -92,14 +92,7 @@ class PlainRobosuiteGym:
     ours but the key renaming), observed with the same keys in the same order as `SimEnv`."""
 
     def __init__(self, env_args: dict[str, Any], obs_keys: tuple[str, ...]) -> None:
-        import os
-
-        os.environ.setdefault("PYNPUT_BACKEND", "dummy")  # robosuite.devices wants a display
-        import robosuite
-
-        if "env_name" not in env_args:
-            raise ValueError("the run's dataset has no env_args to rebuild plain robosuite")
-        self.env = robosuite.make(env_args["env_name"], **plain_env_kwargs(env_args))
+        self.env = make_plain_robosuite(env_args)
         low, high = self.env.action_spec
         self._low, self._high = np.asarray(low), np.asarray(high)
         self.obs_keys = obs_keys
@@ -107,8 +100,8 @@ class PlainRobosuiteGym:
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[Any, dict[str, Any]]:
-        if seed is not None:  # in place: robosuite's placement samplers hold env.rng
-            self.env.rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
+        if seed is not None:
+            reseed_plain(self.env, seed)
         return self._flat(self.env.reset()), {}
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:

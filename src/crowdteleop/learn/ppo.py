@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 from sb3_contrib import RecurrentPPO
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
@@ -104,7 +104,7 @@ def train_ppo(
         if remaining:
             model.learn(
                 remaining,
-                callback=CallbackList([curve]),
+                callback=curve,
                 reset_num_timesteps=not state,
                 progress_bar=progress_bar,
             )

@@ -206,27 +206,40 @@ def plain_env_kwargs(env_args: dict[str, Any]) -> dict[str, Any]:
     return {**PLAIN_DEFAULTS, **dict(env_args.get("env_kwargs") or {})}
 
 
+def make_plain_robosuite(env_args: dict[str, Any], **overrides: Any) -> Any:
+    """``robosuite.make(env_name, **env_kwargs)`` from ``env_args`` alone (plus ``overrides``),
+    as a robomimic user would rebuild the scene."""
+    import os
+
+    os.environ.setdefault("PYNPUT_BACKEND", "dummy")  # robosuite.devices wants a display
+    import robosuite
+
+    from crowdteleop.learn.data import LearnDataError
+
+    if "env_name" not in env_args:
+        raise LearnDataError("the dataset has no env_args to rebuild plain robosuite from")
+    return robosuite.make(env_args["env_name"], **{**plain_env_kwargs(env_args), **overrides})
+
+
+def reseed_plain(env: Any, seed: int) -> None:
+    """Episode ``seed``'s scene: ``env.rng`` reseeded in place (robosuite's placement
+    samplers hold a reference to it)."""
+    env.rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
+
+
 class PlainRobosuiteEnv:
     """``robosuite.make(env_name, **env_kwargs)`` and nothing of ours but the key renaming."""
 
     def __init__(self, checkpoint: Checkpoint) -> None:
-        import os
-
-        os.environ.setdefault("PYNPUT_BACKEND", "dummy")  # robosuite.devices wants a display
-        import robosuite
-
         from crowdteleop.learn.data import LearnDataError
 
-        env_args = checkpoint.dataset.get("env_args") or {}
-        if "env_name" not in env_args:
-            raise LearnDataError("the checkpoint's dataset has no env_args to rebuild robosuite")
-        kwargs = plain_env_kwargs(env_args)
+        overrides = {}
         if checkpoint.config.actions == "actions_abs":
             configs = checkpoint.dataset.get("abs_controller_configs")
             if not configs:
                 raise LearnDataError("the dataset named no actions_abs_controller_configs")
-            kwargs["controller_configs"] = configs  # robosuite's OSC in absolute input mode
-        self.env = robosuite.make(env_args["env_name"], **kwargs)
+            overrides["controller_configs"] = configs  # robosuite's OSC in absolute input mode
+        self.env = make_plain_robosuite(checkpoint.dataset.get("env_args") or {}, **overrides)
         low, high = self.env.action_spec
         self._low, self._high = np.asarray(low), np.asarray(high)
         if checkpoint.config.actions == "actions_abs":
@@ -240,8 +253,7 @@ class PlainRobosuiteEnv:
     def reset(self, seed: int) -> Obs:
         from crowdteleop.sim.types import low_dim_keys
 
-        # in place: robosuite's placement samplers hold a reference to env.rng
-        self.env.rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
+        reseed_plain(self.env, seed)
         return low_dim_keys(self.env.reset())
 
     def step(self, action: npt.NDArray[np.float64]) -> tuple[Obs, bool]:

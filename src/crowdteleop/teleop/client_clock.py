@@ -26,6 +26,7 @@ class ClientClock:
     """One peer's clock offset, from its pongs."""
 
     samples: deque[OffsetSample] = field(default_factory=lambda: deque(maxlen=SAMPLES))
+    best: OffsetSample | None = None  # the fastest of `samples`, kept as they change
 
     def add_round_trip(self, sent_s: float, received_s: float, client_ms: float) -> None:
         """A ping sent at ``sent_s`` (server monotonic seconds) came back at ``received_s``,
@@ -33,10 +34,8 @@ class ClientClock:
         rtt_ms = max(0.0, (received_s - sent_s) * 1e3)
         midpoint_ms = (sent_s + received_s) / 2 * 1e3
         self.samples.append(OffsetSample(client_ms - midpoint_ms, rtt_ms))
-
-    @property
-    def best(self) -> OffsetSample | None:
-        return min(self.samples, key=lambda s: s.rtt_ms) if self.samples else None
+        # once a round trip, not once a pose: `age_ms` runs for every pose that arrives
+        self.best = min(self.samples, key=lambda s: s.rtt_ms)
 
     def age_ms(self, client_time_ms: float, now_s: float) -> float | None:
         """How long ago (server clock) the client stamped ``client_time_ms``; None before the
