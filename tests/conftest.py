@@ -3,12 +3,43 @@ what it builds, since a robosuite environment holds about 1 GiB."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import tempfile
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
 from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.sim.interface import Simulation
+
+_GUARD = pytest.StashKey[tuple[subprocess.Popen, Path]]()
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Starts the guard that keeps the run off real-time scheduling (see realtime_guard)."""
+    log = Path(tempfile.mkdtemp(prefix="crowdteleop-rt-")) / "guard.log"
+    guard = subprocess.Popen(
+        [sys.executable, "-m", "tests.fixtures.realtime_guard", str(os.getpid()), str(log)],
+        cwd=Path(__file__).parent.parent,
+    )
+    session.config.stash[_GUARD] = (guard, log)
+
+
+def pytest_terminal_summary(terminalreporter, config: pytest.Config) -> None:
+    if _GUARD not in config.stash:
+        return
+    guard, log = config.stash[_GUARD]
+    guard.terminate()
+    guard.wait(timeout=10)
+    lines = log.read_text().splitlines() if log.exists() else []
+    moved = [line for line in lines if " reset " in line]
+    if moved:
+        terminalreporter.section("threads moved off real-time scheduling")
+        for line in lines:
+            terminalreporter.write_line(line)
 
 
 @pytest.fixture

@@ -30,8 +30,10 @@ MAY_IMPORT: dict[str, set[str]] = {
     "learn": BASE | {"tasks", "sim", "control", "recording", "dataset"},
     "web": set(),
     "coord": BASE | {"tasks", "teleop", "web"},
+    "crowd": BASE | {"tasks", "sim", "control", "teleop", "client", "coord"},
     "cli": BASE
-    | {"tasks", "sim", "control", "recording", "teleop", "client", "dataset", "learn", "coord"},
+    | {"tasks", "sim", "control", "recording", "teleop", "client", "dataset", "learn", "coord"}
+    | {"crowd"},
     "__main__": {"cli"},
     "__init__": {"gl"},
 }

@@ -165,13 +165,32 @@ def bot(
     admin_token: Annotated[str, typer.Option(help="admin token (privileged state)")] = "",
     episodes: Annotated[int, typer.Option(help="episodes to drive")] = 1,
     timeout: Annotated[float, typer.Option(help="give up after this many seconds")] = 300.0,
+    coordinator: Annotated[
+        str | None,
+        typer.Option(help="join through this coordinator as workers do, instead of --url"),
+    ] = None,
+    count: Annotated[int, typer.Option(help="with --coordinator: how many bots join")] = 1,
+    campaign: Annotated[str | None, typer.Option(help="with --coordinator: campaign")] = None,
+    task: Annotated[
+        str | None, typer.Option(help="with --coordinator: the task the campaign must assign")
+    ] = None,
+    phone_every: Annotated[
+        int, typer.Option(help="with --coordinator: every k-th bot drives from a paired phone")
+    ] = 0,
+    json_out: Annotated[
+        Path | None, typer.Option("--json", help="with --coordinator: per-bot report file")
+    ] = None,
 ) -> None:
-    """Drive a running teleop session with a scripted operator, through the network."""
-    from crowdteleop.client.bot import main as run_bot
-
+    """Drive a running teleop session with a scripted operator, through the network; or, with
+    --coordinator, join COUNT bots as workers and report what each lived through."""
     if not admin_token:
         console.print("[red]error:[/red] the bot needs --admin-token (it reads object poses)")
         raise typer.Exit(2)
+    if coordinator is not None:
+        _crowd(coordinator, admin_token, count, campaign, task, phone_every, timeout, json_out)
+        return
+    from crowdteleop.client.bot import main as run_bot
+
     try:
         result = run_bot(url, token, admin_token, episodes, timeout)
     except (ConnectionError, TimeoutError, OSError) as exc:
@@ -181,6 +200,41 @@ def bot(
         f"{result.successes}/{len(result.episodes)} episodes succeeded "
         f"({', '.join(result.episodes)}) in {result.seconds:.1f} s"
     )
+
+
+def _crowd(
+    coordinator: str,
+    admin_token: str,
+    count: int,
+    campaign: str | None,
+    task: str | None,
+    phone_every: int,
+    timeout: float,
+    json_out: Path | None,
+) -> None:
+    import asyncio
+
+    from crowdteleop.crowd.report import crowd_table, summary, write_json
+    from crowdteleop.crowd.worker import CrowdSettings, run_crowd
+
+    if task is not None and task not in TASKS:
+        console.print(f"[red]error:[/red] unknown task {task!r}; known: {', '.join(TASKS)}")
+        raise typer.Exit(2)
+    settings = CrowdSettings(
+        coordinator, admin_token, campaign, task, session_timeout_s=timeout, phone_every=phone_every
+    )
+    with console.status(f"{count} bot(s) joining {coordinator} ..."):
+        reports = asyncio.run(run_crowd(settings, count))
+    console.print(crowd_table(reports))
+    totals = summary(reports)
+    console.print(
+        f"{totals['completed']}/{count} bots got a completion code; latency p50 "
+        f"{totals['latency_p50_ms']} ms, p95 {totals['latency_p95_ms']} ms"
+    )
+    if json_out is not None:
+        write_json(reports, json_out)
+    if totals["completed"] != count:
+        raise typer.Exit(1)
 
 
 @app.command("protocol-schema")

@@ -61,7 +61,10 @@ class BotResult:
 
 
 class Bot:
-    """Sends one command per server step, in step with the privileged stream."""
+    """Sends one command per server step, in step with the privileged stream.
+
+    Commands go through `client`; the object poses come from `observer`'s admin channel, which
+    is `client` itself unless a bot drives as a worker (or phone) and watches as an admin."""
 
     def __init__(
         self,
@@ -69,6 +72,7 @@ class Bot:
         style: OperatorStyle | None = None,
         mapping: MappingConfig | None = None,
         seed: int = 0,
+        observer: TeleopClient | None = None,
     ) -> None:
         self.client = client
         self.style = style
@@ -81,7 +85,7 @@ class Bot:
         # (position, quaternion, engaged, gripper) as last sent by `TeleopClient.send_pose`
         self._last_pose: tuple[Iterable[float], Iterable[float], bool, bool] | None = None
         self._await_seq: int | None = None  # a pose the server must apply before we go on
-        client.on_privileged = self._on_privileged
+        (observer or client).on_privileged = self._on_privileged
 
     def _on_privileged(self, message: PrivilegedState) -> None:
         hello = self.client.state.hello

@@ -8,7 +8,7 @@ import json
 import logging
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -95,7 +95,11 @@ class TeleopClient:
         ice_servers: Sequence[IceServer | str] = (),
         relay_only: bool = False,
         on_privileged: Callable[[PrivilegedState], None] | None = None,
+        offer_via: Callable[[str], Awaitable[OfferAnswer]] | None = None,
     ) -> None:
+        """`offer_via(sdp)` signals through someone else (the coordinator, as a worker's page
+        does) instead of posting to the teleop server's `/offer` with `token`."""
+        self.offer_via = offer_via
         self.base_url = base_url.rstrip("/")
         self.token, self.role, self.device = token, role, device
         self.admin_token = admin_token
@@ -131,11 +135,18 @@ class TeleopClient:
             self.pc.addTransceiver("video", direction="recvonly")
             self.pc.on("track", self._on_track)
         await self.pc.setLocalDescription(await self.pc.createOffer())
+        sdp = self.pc.localDescription.sdp
+        if self.offer_via is not None:
+            accepted = await self.offer_via(sdp)
+        else:
+            accepted = await self._offer_directly(sdp)
+        self.peer_id = accepted.peer_id
+        await self.pc.setRemoteDescription(RTCSessionDescription(accepted.sdp, accepted.type))
+        await self.wait_for(lambda s: s.hello is not None, timeout)
+
+    async def _offer_directly(self, sdp: str) -> OfferAnswer:
         offer = OfferRequest(
-            sdp=self.pc.localDescription.sdp,
-            token=self.token,
-            role=self.role,
-            admin_token=self.admin_token or None,
+            sdp=sdp, token=self.token, role=self.role, admin_token=self.admin_token or None
         )
         async with (
             aiohttp.ClientSession() as http,
@@ -150,10 +161,7 @@ class TeleopClient:
                 raise OfferRefusedError(
                     response.status, answer.get("error", "?"), answer.get("message", "")
                 )
-        accepted = OfferAnswer.model_validate(answer)
-        self.peer_id = accepted.peer_id
-        await self.pc.setRemoteDescription(RTCSessionDescription(accepted.sdp, accepted.type))
-        await self.wait_for(lambda s: s.hello is not None, timeout)
+        return OfferAnswer.model_validate(answer)
 
     async def close(self) -> None:
         for task in self._tasks:

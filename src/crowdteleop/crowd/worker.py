@@ -1,0 +1,170 @@
+"""One bot that is a worker: it joins through the coordinator exactly as a browser does (study
+link, session, queue, WebRTC offer through the coordinator, heartbeats, a phone paired with
+the page's code for some), drives its robot with a scripted operator until the campaign's
+demonstrations are done, and reports what a worker would have lived through."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import time
+from dataclasses import dataclass, field
+
+import aiohttp
+import numpy as np
+
+from crowdteleop.client.bot import Bot
+from crowdteleop.client.connection import TeleopClient
+from crowdteleop.crowd.api import WorkerApi
+from crowdteleop.teleop.messages import OfferAnswer
+
+
+@dataclass
+class CrowdSettings:
+    """What every bot of a crowd shares."""
+
+    coordinator_url: str
+    admin_token: str  # the bot reads object poses through the admin API, as `crowdteleop bot`
+    campaign: str | None = None
+    task: str | None = None  # if set, a session of another task is reported as an error
+    study_id: str = "crowd-bots"
+    queue_timeout_s: float = 600.0
+    session_timeout_s: float = 900.0
+    phone_every: int = 0  # every k-th bot drives from a paired phone (0: none)
+
+
+@dataclass
+class WorkerReport:
+    """One bot's visit, in the figures a worker's experience is judged by."""
+
+    name: str
+    session_id: str = ""
+    task: str = ""
+    device: str = "bot"  # what drove: the page (bot) or a paired phone
+    queued_s: float = 0.0  # from joining to the session being ready
+    first_frame_s: float | None = None  # from joining to the first video frame
+    episode_s: list[float] = field(default_factory=list)  # wall time of each episode
+    outcomes: list[str] = field(default_factory=list)
+    latency_ms: list[float] = field(default_factory=list)  # control-to-frame, per frame
+    fps: float = 0.0
+    completion_code: str | None = None
+    error: str | None = None
+
+    @property
+    def latency_p50_ms(self) -> float | None:
+        return float(np.median(self.latency_ms)) if self.latency_ms else None
+
+    @property
+    def latency_p95_ms(self) -> float | None:
+        return float(np.percentile(self.latency_ms, 95)) if self.latency_ms else None
+
+
+async def _drive(
+    api: WorkerApi, report: WorkerReport, settings: CrowdSettings, index: int, joined_at: float
+) -> None:
+    view = await api.until_ready(settings.queue_timeout_s)
+    report.queued_s = time.monotonic() - joined_at
+    report.task = view.task
+    if settings.task is not None and view.task != settings.task:
+        raise ValueError(f"the campaign assigned {view.task!r}, not {settings.task!r}")
+    access = await api.teleop_access(settings.admin_token)
+    worker = TeleopClient(access.url, "", role="worker", device="bot", offer_via=api.offer)
+    observer = TeleopClient(
+        access.url, access.token, role="admin", admin_token=access.admin_token, video=False
+    )
+    clients = [worker, observer]
+    try:
+        await worker.connect()
+        await observer.connect()
+        driver = worker
+        if settings.phone_every and index % settings.phone_every == settings.phone_every - 1:
+            phone_token = await api.pair_phone()
+
+            async def phone_offer(sdp: str) -> OfferAnswer:
+                return await api.phone_offer(phone_token, sdp)
+
+            driver = TeleopClient(
+                access.url, "", role="phone", device="phone", offer_via=phone_offer
+            )
+            clients.append(driver)
+            await driver.connect()
+            driver.take_control()
+            worker.latency = driver.latency  # the phone commands, the page shows the frames
+            report.device = "phone"
+        await worker.wait_for(lambda state: state.frames_received > 0, 60)
+        report.first_frame_s = time.monotonic() - joined_at
+        bot = Bot(driver, seed=index, observer=observer)
+        streaming = asyncio.create_task(bot.stream(30.0))
+        try:
+            await _until_done(api, worker, report, settings.session_timeout_s)
+        finally:
+            streaming.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await streaming
+        report.latency_ms = list(worker.latency.samples_ms)
+        report.fps = worker.state.fps()
+    finally:
+        for client in clients:
+            await client.close()
+
+
+async def _until_done(
+    api: WorkerApi, worker: TeleopClient, report: WorkerReport, timeout_s: float
+) -> None:
+    """Episodes as they end, until the coordinator hands over the completion code."""
+    started = last_end = time.monotonic()
+    code_at: float | None = None
+    while True:
+        episodes = worker.state.episodes
+        while len(report.outcomes) < len(episodes):
+            now = time.monotonic()
+            report.outcomes.append(episodes[len(report.outcomes)].outcome)
+            report.episode_s.append(now - last_end)
+            last_end = now
+        view = await api.refresh()
+        if view.completion_code:
+            report.completion_code = view.completion_code
+            if report.outcomes.count("success") >= view.demos_required:
+                return
+            # The coordinator heard of the last demonstration (stored, then reported) before
+            # the page heard of its end: wait for the page a little.
+            code_at = code_at or time.monotonic()
+            if time.monotonic() - code_at > 10:
+                raise ConnectionError("a completion code, but the page never heard the episode end")
+        elif view.state == "ended":
+            raise ConnectionError(f"the session ended ({view.ended_reason}) without a code")
+        if time.monotonic() - started > timeout_s:
+            raise TimeoutError(f"no completion code after {timeout_s:.0f} s")
+        await asyncio.sleep(0.25)
+
+
+async def visit(http: aiohttp.ClientSession, settings: CrowdSettings, index: int) -> WorkerReport:
+    """One bot's whole visit; a failure is reported in `error`, never raised."""
+    name = f"bot-{index:03d}"
+    report = WorkerReport(name=name)
+    api = WorkerApi(http, settings.coordinator_url, settings.campaign)
+    joined_at = time.monotonic()
+    try:
+        params = {"PROLIFIC_PID": name, "STUDY_ID": settings.study_id, "SESSION_ID": f"{name}-1"}
+        await api.join(params)
+        await api.start_session()
+        report.session_id = api.session_id
+        await _drive(api, report, settings, index, joined_at)
+    except Exception as exc:  # one bot's failure is its report, not the crowd's
+        report.error = f"{type(exc).__name__}: {exc}"
+    finally:
+        await api.leave()
+    return report
+
+
+async def run_crowd(
+    settings: CrowdSettings, count: int, stagger_s: float = 0.5
+) -> list[WorkerReport]:
+    """`count` bots joining `stagger_s` apart, all at once after that."""
+    async with aiohttp.ClientSession() as http:
+
+        async def staggered(index: int) -> WorkerReport:
+            await asyncio.sleep(index * stagger_s)
+            return await visit(http, settings, index)
+
+        return list(await asyncio.gather(*(staggered(i) for i in range(count))))
