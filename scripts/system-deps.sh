@@ -16,6 +16,7 @@ if [ "$profile" = "test" ]; then
     postgresql   # the coordination server's database tests run against a real PostgreSQL
     chromium     # the web pages' end-to-end tests (Playwright drives /usr/bin/chromium)
     coturn       # TURN: a session relayed through a real TURN server (relay-only ICE)
+    iperf3       # the link emulator's rate and loss, measured by a tool that is not ours
   )
   # The pages' JS unit tests run on node's own test runner; any node >= 18 will do.
   command -v node >/dev/null || packages+=(nodejs)

@@ -29,11 +29,12 @@ MAY_IMPORT: dict[str, set[str]] = {
     "dataset": BASE | {"tasks", "sim", "control", "recording", "teleop"},
     "learn": BASE | {"tasks", "sim", "control", "recording", "dataset"},
     "web": set(),
+    "linkemu": set(),
     "coord": BASE | {"tasks", "teleop", "web"},
     "crowd": BASE | {"tasks", "sim", "control", "teleop", "client", "coord"},
     "cli": BASE
     | {"tasks", "sim", "control", "recording", "teleop", "client", "dataset", "learn", "coord"}
-    | {"crowd"},
+    | {"crowd", "linkemu"},
     "__main__": {"cli"},
     "__init__": {"gl"},
 }
