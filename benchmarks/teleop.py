@@ -243,6 +243,11 @@ def main() -> None:
         f"machine: {psutil.cpu_count(logical=False)} physical / {psutil.cpu_count()} logical "
         f"cores, load {os.getloadavg()[0]:.2f}; task {args.task}, 20 Hz, 320x240 VP8"
     )
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from learning import robosuite_lift_step_ms
+
+    step_ms = robosuite_lift_step_ms()  # these VMs differ ~2x from day to day: state this one's
+    console.print(f"plain robosuite Lift step: {step_ms:.2f} ms")
     rows = []
     for n in [int(x) for x in args.sessions.split(",")]:
         for _ in range(args.repeats if n == 1 else 1):
@@ -273,10 +278,13 @@ def main() -> None:
         )
     console.print(table)
     best = max((r["sessions"] for r in rows if r["ok"]), default=0)
-    console.print(f"largest session count at full rate: {best}")
+    console.print(
+        f"largest session count at full rate: {best}; normalized to a 3.5 ms robosuite step: "
+        f"{best} x {step_ms:.2f} / 3.5 = {best * step_ms / 3.5:.1f}"
+    )
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        document = {"rows": rows, "options": vars(args)}
+        document = {"rows": rows, "options": vars(args), "robosuite_lift_step_ms": step_ms}
         args.json.write_text(json.dumps(document, indent=2, default=str))
 
 

@@ -31,6 +31,10 @@ class CrowdSettings:
     queue_timeout_s: float = 600.0
     session_timeout_s: float = 900.0
     phone_every: int = 0  # every k-th bot drives from a paired phone (0: none)
+    # Load tests: drive for warmup_s + window_s after the first frame, measure in the window,
+    # then leave (no completion code expected).
+    window_s: float | None = None
+    warmup_s: float = 5.0
 
 
 @dataclass
@@ -96,16 +100,32 @@ async def _drive(
         bot = Bot(driver, seed=index, observer=observer)
         streaming = asyncio.create_task(bot.stream(30.0))
         try:
-            await _until_done(api, worker, report, settings.session_timeout_s)
+            if settings.window_s is not None:
+                await _for_a_window(worker, report, settings.warmup_s, settings.window_s)
+            else:
+                await _until_done(api, worker, report, settings.session_timeout_s)
+                report.latency_ms = list(worker.latency.samples_ms)
+                report.fps = worker.state.fps()
         finally:
             streaming.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await streaming
-        report.latency_ms = list(worker.latency.samples_ms)
-        report.fps = worker.state.fps()
     finally:
         for client in clients:
             await client.close()
+
+
+async def _for_a_window(
+    worker: TeleopClient, report: WorkerReport, warmup_s: float, window_s: float
+) -> None:
+    """Latency and frame rate over a window after a warm-up, as a load test measures them."""
+    await asyncio.sleep(warmup_s)
+    first_sample, first_frames = len(worker.latency.samples_ms), worker.state.frames_received
+    started = time.monotonic()
+    await asyncio.sleep(window_s)
+    report.fps = (worker.state.frames_received - first_frames) / (time.monotonic() - started)
+    report.latency_ms = list(worker.latency.samples_ms[first_sample:])
+    report.outcomes = [episode.outcome for episode in worker.state.episodes]
 
 
 async def _until_done(

@@ -1,0 +1,293 @@
+"""Capacity through the whole platform (issue 15, item 2): N bots join a real coordinator as
+workers do (study link, queue, launch, WebRTC signalled through the coordinator, heartbeats),
+each in its own process, and drive lift; N ramps until a session misses its targets.
+
+Full quality, for every N: every teleop server starts >= 95 % of its control ticks on time,
+every bot receives >= 18 fps, and bot 0 (the one that decodes its video; the others count
+frames without decoding, as a load generator should) sees control-to-photon latency p50
+<= 60 ms and p95 <= 100 ms. Bots, servers and the coordinator share this machine.
+
+These VMs differ ~2x in speed from day to day, so plain robosuite's Lift step is measured in
+the same run and the capacity is also given normalized to a 3.5 ms step: N x t_rs / 3.5 ms.
+
+    .venv/bin/python benchmarks/capacity.py                          # N = 1, 2, 4, 6, 8, 10
+    .venv/bin/python benchmarks/capacity.py --sessions 4,6,8 --window 20 --json out/cap.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import psutil
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from tests.fixtures.ready import stop_gracefully, wait_ready
+
+ADMIN = "capacity-admin-token-0123456789"
+ON_TIME, MIN_FPS, P50_MS, P95_MS = 0.95, 18.0, 60.0, 100.0
+REFERENCE_STEP_MS = 3.5
+MARK = "BENCH-BOT "
+
+
+# --- one bot, in its own process -------------------------------------------------------------
+
+
+def bot_main(url: str, index: int, decode: bool, warmup_s: float, window_s: float) -> None:
+    import aiohttp
+
+    if not decode:
+        from crowdteleop.client.counting import disable_decoding
+
+        disable_decoding()
+    from crowdteleop.crowd.worker import CrowdSettings, visit
+
+    settings = CrowdSettings(url, ADMIN, window_s=window_s, warmup_s=warmup_s)
+
+    async def run() -> Any:
+        async with aiohttp.ClientSession() as http:
+            return await visit(http, settings, index)
+
+    started, cpu0 = time.monotonic(), psutil.Process().cpu_times()
+    report = asyncio.run(run())
+    cpu1 = psutil.Process().cpu_times()
+    cpu = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / (time.monotonic() - started)
+    print(MARK + json.dumps({**asdict(report), "cpu": cpu}), flush=True)
+
+
+# --- the ramp --------------------------------------------------------------------------------
+
+
+def _coordinator(directory: Path, n: int) -> tuple[subprocess.Popen[str], str]:
+    config = {
+        "capacity": n,
+        "spare_servers": 0,
+        "reaper_interval_s": 0.5,
+        "admission": {"live_sessions_per_address": 256, "joins_per_minute_per_address": 600},
+        "campaigns": [
+            {"name": "capacity", "tasks": ["lift"], "demos_required": 1000, "time_limit_s": 3600}
+        ],
+    }
+    (directory / "coord.json").write_text(json.dumps(config))
+    log = directory / "coord.log"
+    command = [sys.executable, "-m", "crowdteleop", "serve", "--port", "0", "--admin-token", ADMIN]
+    command += ["--data-dir", str(directory), "--config", str(directory / "coord.json")]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=log.open("w"), text=True)
+    return process, wait_ready(process, log, 60.0, "coordinator")
+
+
+def _admin(url: str, path: str) -> Any:
+    import httpx
+
+    headers = {"Authorization": f"Bearer {ADMIN}"}
+    return httpx.get(f"{url}{path}", headers=headers, timeout=10).json()
+
+
+def _telemetry(url: str, session_id: str) -> dict[str, Any]:
+    import httpx
+
+    access = _admin(url, f"/api/admin/sessions/{session_id}/teleop")
+    headers = {"Authorization": f"Bearer {access['admin_token']}"}
+    telemetry: dict[str, Any] = httpx.get(
+        f"{access['url']}/telemetry", headers=headers, timeout=10
+    ).json()
+    return telemetry
+
+
+def _percentile(values: list[float], q: float) -> float | None:
+    return float(statistics.quantiles(values, n=100)[q - 1]) if len(values) > 1 else None
+
+
+def measure(n: int, warmup_s: float, window_s: float) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory(prefix="bench-capacity-") as tmp:
+        coordinator, url = _coordinator(Path(tmp), n)
+        bots: list[subprocess.Popen[str]] = []
+        try:
+            for index in range(n):
+                command = [sys.executable, __file__, "--bot", url, "--index", str(index)]
+                command += ["--warmup", str(warmup_s), "--window", str(window_s)]
+                command += ["--decode"] if index == 0 else []
+                bots.append(subprocess.Popen(command, stdout=subprocess.PIPE, text=True))
+                time.sleep(0.3)
+            deadline = time.monotonic() + 180
+            while len(ready := _ready_sessions(url)) < n:
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"only {len(ready)} of {n} sessions ready after 180 s")
+                time.sleep(0.5)
+            time.sleep(warmup_s + 2.0)  # every bot past its first frame and warm-up
+            before = {sid: _telemetry(url, sid) for sid in ready}
+            psutil.cpu_percent()
+            started = time.monotonic()
+            time.sleep(max(1.0, window_s - 4.0))
+            cpu_percent = psutil.cpu_percent()
+            wall = time.monotonic() - started
+            after = {sid: _telemetry(url, sid) for sid in ready}
+            reports = [_report(bot, warmup_s + window_s + 240) for bot in bots]
+        finally:
+            for bot in bots:
+                if bot.poll() is None:
+                    bot.kill()
+            stop_gracefully(coordinator, 30)
+    on_time = []
+    for sid, first in before.items():
+        last = after[sid]
+        ticks = last["ticks"] - first["ticks"]
+        late, skipped = last["late"] - first["late"], last["skipped"] - first["skipped"]
+        on_time.append((ticks - late) / (ticks + skipped) if ticks else 0.0)
+    errors = [r["error"] for r in reports if r["error"]]
+    fps = [r["fps"] for r in reports]
+    latency = reports[0]["latency_ms"]
+    every_latency = [sample for r in reports for sample in r["latency_ms"]]
+    p50, p95 = _percentile(latency, 50), _percentile(latency, 95)
+    ok = (
+        not errors
+        and min(on_time) >= ON_TIME
+        and min(fps) >= MIN_FPS
+        and p50 is not None
+        and p95 is not None
+        and p50 <= P50_MS
+        and p95 <= P95_MS
+    )
+    return {
+        "sessions": n,
+        "ok": ok,
+        "errors": errors,
+        "on_time_min": min(on_time),
+        "fps_min": min(fps),
+        "fps_decoded": fps[0],
+        "latency_p50_ms": p50,
+        "latency_p95_ms": p95,
+        "latency_all_bots_p95_ms": _percentile(every_latency, 95),
+        "cpu_percent_of_machine": cpu_percent,
+        "window_s": wall,
+        "first_frame_s_median": statistics.median(
+            r["first_frame_s"] for r in reports if r["first_frame_s"] is not None
+        ),
+        "bot_cpu_per_bot": statistics.median(r["cpu"] for r in reports),
+        "episodes": sum(len(r["outcomes"]) for r in reports),
+        "successes": sum(r["outcomes"].count("success") for r in reports),
+    }
+
+
+def _ready_sessions(url: str) -> list[str]:
+    sessions = _admin(url, "/api/admin/overview")["sessions"]
+    return [s["session_id"] for s in sessions if s["state"] == "ready"]
+
+
+def _report(bot: subprocess.Popen[str], timeout_s: float) -> dict[str, Any]:
+    out, _ = bot.communicate(timeout=timeout_s)
+    line = next((x for x in out.splitlines() if x.startswith(MARK)), None)
+    if line is None:
+        return {"error": f"bot exited {bot.returncode} without a report", "fps": 0.0,
+                "latency_ms": [], "first_frame_s": None, "cpu": 0.0, "outcomes": []}  # fmt: skip
+    report: dict[str, Any] = json.loads(line.removeprefix(MARK))
+    return report
+
+
+def plot(rows: list[dict[str, Any]], step_ms: float, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = [row["sessions"] for row in rows]
+    figure, (latency, fps, cpu) = plt.subplots(1, 3, figsize=(13, 3.8))
+    latency.plot(n, [row["latency_p50_ms"] for row in rows], "o-", label="p50 (bot 0)")
+    latency.plot(n, [row["latency_p95_ms"] for row in rows], "s-", label="p95 (bot 0)")
+    latency.plot(n, [row["latency_all_bots_p95_ms"] for row in rows], "^--", label="p95 (all)")
+    latency.axhline(P95_MS, color="grey", linestyle=":", label="p95 target")
+    latency.axhline(P50_MS, color="grey", linestyle="--", label="p50 target")
+    latency.set(xlabel="live sessions N", ylabel="control-to-photon latency (ms)")
+    fps.plot(n, [row["fps_min"] for row in rows], "o-", label="worst bot")
+    fps.plot(n, [row["fps_decoded"] for row in rows], "s-", label="bot 0 (decoded)")
+    fps.axhline(MIN_FPS, color="grey", linestyle=":", label="target")
+    fps.set(xlabel="live sessions N", ylabel="frames per second received")
+    cpu.plot(n, [row["cpu_percent_of_machine"] for row in rows], "o-", label="machine CPU %")
+    cpu.plot(n, [100 * row["on_time_min"] for row in rows], "s-", label="worst on-time %")
+    cpu.set(xlabel="live sessions N", ylabel="%", ylim=(0, 105))
+    for axes in (latency, fps, cpu):
+        axes.legend(fontsize=8)
+        axes.grid(alpha=0.3)
+    figure.suptitle(
+        f"Through the coordinator, bots included, 2 cores; plain robosuite Lift step {step_ms:.2f}"
+        f" ms (normalized capacity = N x {step_ms:.2f} / {REFERENCE_STEP_MS})",
+        fontsize=10,
+    )
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sessions", default="1,2,4,6,8,10")
+    parser.add_argument("--window", type=float, default=20.0, help="seconds measured")
+    parser.add_argument("--warmup", type=float, default=6.0)
+    parser.add_argument("--all", action="store_true", help="go on after the first miss")
+    parser.add_argument("--json", type=Path)
+    parser.add_argument("--plot", type=Path, default=Path(__file__).parent / "capacity.png")
+    parser.add_argument("--bot", help=argparse.SUPPRESS)
+    parser.add_argument("--index", type=int, default=0, help=argparse.SUPPRESS)
+    parser.add_argument("--decode", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.bot:
+        bot_main(args.bot, args.index, args.decode, args.warmup, args.window)
+        return
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from learning import robosuite_lift_step_ms
+
+    console = Console()
+    step_ms = robosuite_lift_step_ms()
+    console.print(f"plain robosuite Lift step: {step_ms:.2f} ms")
+    rows = []
+    for n in [int(x) for x in args.sessions.split(",")]:
+        with console.status(f"{n} bots through the coordinator ..."):
+            row = measure(n, args.warmup, args.window)
+        rows.append(row)
+        console.print(
+            f"N={n}: ok={row['ok']} on-time {row['on_time_min']:.3f} fps {row['fps_min']:.1f} "
+            f"latency {row['latency_p50_ms']} / {row['latency_p95_ms']} ms "
+            f"cpu {row['cpu_percent_of_machine']:.0f}% {row['errors'] or ''}"
+        )
+        if not row["ok"] and not args.all:
+            break
+    table = Table(
+        "sessions", "ok", "on-time min %", "fps min", "fps decoded", "latency p50 / p95 ms",
+        "p95 all bots", "machine CPU %", "first frame s", "episodes (success)",
+    )  # fmt: skip
+    for row in rows:
+        table.add_row(
+            str(row["sessions"]), "yes" if row["ok"] else "no",
+            f"{100 * row['on_time_min']:.1f}", f"{row['fps_min']:.1f}",
+            f"{row['fps_decoded']:.1f}",
+            f"{row['latency_p50_ms'] or 0:.0f} / {row['latency_p95_ms'] or 0:.0f}",
+            f"{row['latency_all_bots_p95_ms'] or 0:.0f}", f"{row['cpu_percent_of_machine']:.0f}",
+            f"{row['first_frame_s_median']:.1f}", f"{row['episodes']} ({row['successes']})",
+        )  # fmt: skip
+    console.print(table)
+    held = max((row["sessions"] for row in rows if row["ok"]), default=0)
+    normalized = held * step_ms / REFERENCE_STEP_MS
+    console.print(
+        f"capacity at full quality: {held} live sessions; normalized to a {REFERENCE_STEP_MS} ms "
+        f"robosuite step: {held} x {step_ms:.2f} / {REFERENCE_STEP_MS} = {normalized:.1f}"
+    )
+    plot(rows, step_ms, args.plot)
+    if args.json is not None:
+        body = {"robosuite_lift_step_ms": step_ms, "capacity": held, "normalized": normalized}
+        args.json.write_text(json.dumps({**body, "rows": rows}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
