@@ -31,7 +31,7 @@ MAY_IMPORT: dict[str, set[str]] = {
     "web": set(),
     "linkemu": set(),
     "coord": BASE | {"tasks", "teleop", "web"},
-    "crowd": BASE | {"tasks", "sim", "control", "teleop", "client", "coord"},
+    "crowd": BASE | {"tasks", "sim", "control", "teleop", "client", "coord", "linkemu"},
     "cli": BASE
     | {"tasks", "sim", "control", "recording", "teleop", "client", "dataset", "learn", "coord"}
     | {"crowd", "linkemu"},

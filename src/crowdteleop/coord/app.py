@@ -44,7 +44,9 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         await migrate(config.database_url)
         store = Store(make_engine(config.database_url))
         chosen = launcher or LocalProcessLauncher(
-            config.data_dir / "sessions", start_timeout_s=config.teleop_start_timeout_s
+            config.data_dir / "sessions",
+            start_timeout_s=config.teleop_start_timeout_s,
+            host=config.teleop_host,
         )
         metrics = CoordMetrics()
         coordinator = Coordinator(config, store, chosen, keys, metrics)

@@ -58,6 +58,11 @@ class CoordConfig(BaseModel):
     public_url: str = Field(
         "http://127.0.0.1:8000", description="base URL phones and browsers reach us at"
     )
+    teleop_host: str = Field(
+        "127.0.0.1",
+        description="the address launched teleop servers listen on for signalling and the "
+        "admin door: loopback unless bots or proxies elsewhere must reach them",
+    )
     internal_url: str | None = Field(
         None, description="base URL teleop servers report to; default: public_url"
     )

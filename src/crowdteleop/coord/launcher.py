@@ -88,8 +88,10 @@ class LocalProcessLauncher:
         start_timeout_s: float = 120.0,
         stop_timeout_s: float = 15.0,
         python: str = sys.executable,
+        host: str | None = None,
     ) -> None:
         self.work_dir = work_dir
+        self.host = host
         self.start_timeout_s = start_timeout_s
         self.stop_timeout_s = stop_timeout_s
         self.python = python
@@ -101,7 +103,7 @@ class LocalProcessLauncher:
         log_fd = open_private_log(log_path)
         try:
             process = await asyncio.create_subprocess_exec(
-                *teleop_server_argv(config_path, self.python),
+                *teleop_server_argv(config_path, self.python, self.host),
                 stdin=asyncio.subprocess.DEVNULL,
                 stdout=asyncio.subprocess.PIPE,
                 stderr=log_fd,

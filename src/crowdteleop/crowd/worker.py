@@ -103,9 +103,11 @@ async def _drive(
             if settings.window_s is not None:
                 await _for_a_window(worker, report, settings.warmup_s, settings.window_s)
             else:
-                await _until_done(api, worker, report, settings.session_timeout_s)
-                report.latency_ms = list(worker.latency.samples_ms)
-                report.fps = worker.state.fps()
+                try:
+                    await _until_done(api, worker, report, settings.session_timeout_s)
+                finally:  # what the worker saw, also when it did not finish
+                    report.latency_ms = list(worker.latency.samples_ms)
+                    report.fps = worker.state.fps()
         finally:
             streaming.cancel()
             with contextlib.suppress(asyncio.CancelledError):

@@ -117,6 +117,12 @@ class RecordingConfig(BaseModel):
 
     directory: Path = Path("data/episodes")
     keep_failed: bool = Field(True, description="keep reset / timeout / disconnect episodes")
+    labels: dict[str, str] = Field(
+        default_factory=dict,
+        max_length=16,
+        description="metadata every episode of this server carries, e.g. network_condition "
+        "(the dataset's `network` grouping and filter keys read it)",
+    )
     flush_interval_s: float = Field(1.0, gt=0, le=1.0)
     storage: StorageConfig = StorageConfig()
 

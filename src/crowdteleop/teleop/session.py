@@ -302,7 +302,7 @@ class TeleopSession:
             finished,
             self.storage,
             self.config.recording.keep_failed,
-            telemetry,
+            {**self.config.recording.labels, **telemetry},
             storage.saved_when,
             storage.store_wait_s,
         )

@@ -1,0 +1,155 @@
+"""The paper's network experiment (Sec. 4.3, Tables 4-6) with bots: for each link condition, a
+coordinator and its teleop servers in one namespace, a crowd of bots in the other, the
+emulated link (`linkemu`) between them, both ways. Each condition's episodes are recorded
+with the condition's name as `network_condition`, so `crowdteleop dataset stats` groups them
+and gives the KS table across conditions.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from crowdteleop.linkemu.netns import EmulatedLink, emulated_link
+from crowdteleop.linkemu.shaping import LinkSettings
+
+QUEUE_BYTES = 64_000  # ~210 ms at 2.4 Mbps, ~1 s at 500 kbps: a cellular link's deep buffer
+COORD_PORT = 8000
+
+
+@dataclass(frozen=True)
+class Condition:
+    name: str
+    rate_bps: float | None = None
+    delay_ms: float = 0.0
+    loss: float = 0.0
+    trace_ms: tuple[int, ...] | None = None
+
+    def link(self, seed: int, workers: int = 1) -> LinkSettings:
+        """The link `workers` bots share, each with this condition's capacity and queue as
+        its fair share (the paper gave every worker a link of their own)."""
+        trace = [t for t in self.trace_ms for _ in range(workers)] if self.trace_ms else None
+        return LinkSettings(
+            rate_bps=None if trace or self.rate_bps is None else self.rate_bps * workers,
+            trace_ms=trace,
+            delay_ms=self.delay_ms,
+            queue_bytes=QUEUE_BYTES * workers,
+            loss=self.loss,
+            seed=seed,
+        )
+
+
+PAPER_CONDITIONS = (
+    Condition("baseline", rate_bps=2.4e6, delay_ms=20),
+    Condition("low-capacity", rate_bps=500e3, delay_ms=20),
+    Condition("high-delay", rate_bps=2.4e6, delay_ms=120),
+    Condition("both", rate_bps=500e3, delay_ms=120),
+    Condition("lossy", rate_bps=2.4e6, delay_ms=20, loss=0.02),
+)
+
+
+@dataclass
+class ConditionRun:
+    condition: str
+    task: str
+    episodes_dir: Path
+    crowd: dict[str, Any] = field(default_factory=dict)  # the bots' JSON report
+    link: dict[str, Any] = field(default_factory=dict)  # the forwarder's counters
+    seconds: float = 0.0
+
+
+def _ready_url(process: subprocess.Popen[str], timeout_s: float, log: Path) -> str:
+    found: list[str] = []
+
+    def read() -> None:
+        assert process.stdout is not None
+        for line in process.stdout:
+            if line.startswith("READY ") and not found:
+                found.append(line.split()[1])
+
+    threading.Thread(target=read, daemon=True).start()
+    deadline = time.monotonic() + timeout_s
+    while not found and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.05)
+    if not found:
+        process.kill()
+        raise RuntimeError(f"the coordinator did not start: {log.read_text()[-2000:]}")
+    return found[0]
+
+
+def _coordinator_config(
+    condition: Condition, task: str, bots: int, demos: int, link: EmulatedLink
+) -> dict[str, Any]:
+    return {
+        "capacity": bots,
+        "spare_servers": 0,
+        "teleop_host": link.address_b,  # the bots' observers reach the servers over the link
+        "admission": {"live_sessions_per_address": 256, "joins_per_minute_per_address": 600},
+        "teleop": {"recording": {"labels": {"network_condition": condition.name}}},
+        "campaigns": [
+            {"name": "network", "tasks": [task], "demos_required": demos, "time_limit_s": 3600}
+        ],
+    }
+
+
+def run_condition(
+    condition: Condition,
+    task: str,
+    bots: int,
+    demos_per_bot: int,
+    workdir: Path,
+    admin_token: str,
+    timeout_s: float = 1800.0,
+    seed: int = 0,
+) -> ConditionRun:
+    """Run one condition to the end; needs root (namespaces). Episodes stay in `workdir`."""
+    folder = workdir / f"{task}-{condition.name}"
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    started = time.monotonic()
+    settings = condition.link(seed, bots)
+    with emulated_link(settings, settings.model_copy(update={"seed": seed + 1})) as link:
+        config = _coordinator_config(condition, task, bots, demos_per_bot, link)
+        (folder / "coord.json").write_text(json.dumps(config))
+        log = folder / "coord.log"
+        serve = [sys.executable, "-m", "crowdteleop", "serve", "--host", link.address_b]
+        serve += ["--port", str(COORD_PORT), "--admin-token", admin_token]
+        serve += ["--data-dir", str(folder / "data"), "--config", str(folder / "coord.json")]
+        with log.open("w") as log_file:
+            coordinator = subprocess.Popen(
+                link.run_in("b", serve), stdout=subprocess.PIPE, stderr=log_file, text=True
+            )
+        try:
+            url = _ready_url(coordinator, 90.0, log)
+            report = folder / "crowd.json"
+            crowd = [sys.executable, "-m", "crowdteleop", "bot", "--coordinator", url]
+            crowd += ["--count", str(bots), "--admin-token", admin_token]
+            crowd += ["--campaign", "network", "--task", task, "--timeout", str(timeout_s)]
+            crowd += ["--json", str(report)]
+            with (folder / "crowd.log").open("w") as crowd_log:
+                subprocess.run(
+                    link.run_in("a", crowd),
+                    stdout=crowd_log,
+                    stderr=subprocess.STDOUT,
+                    timeout=timeout_s + 300,
+                )
+            run = ConditionRun(condition.name, task, folder / "data" / "episodes")
+            run.crowd = json.loads(report.read_text()) if report.exists() else {}
+            run.link = link.stats()
+        finally:
+            coordinator.send_signal(signal.SIGINT)
+            try:
+                coordinator.wait(60)
+            except subprocess.TimeoutExpired:
+                coordinator.kill()
+                coordinator.wait()
+    run.seconds = time.monotonic() - started
+    return run
