@@ -66,3 +66,12 @@ def test_settings_refuse_what_makes_no_link(tmp_path):
         read_mahimahi_trace(trace)
     trace.write_text("3\n3\n7\n")
     assert read_mahimahi_trace(trace) == [3, 3, 7]
+
+
+def test_a_cut_link_loses_everything_until_restored():
+    link = Direction(LinkSettings(rate_bps=8_000_000))
+    link.is_cut = True
+    assert link.push(1000, 0.0) is None
+    assert link.counters.cut == 1
+    link.is_cut = False
+    assert link.push(1000, 0.1) == pytest.approx(0.101)

@@ -7,6 +7,7 @@ and gives the KS table across conditions.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import signal
@@ -14,6 +15,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -85,19 +87,59 @@ def _ready_url(process: subprocess.Popen[str], timeout_s: float, log: Path) -> s
     return found[0]
 
 
-def _coordinator_config(
-    condition: Condition, task: str, bots: int, demos: int, link: EmulatedLink
-) -> dict[str, Any]:
+def coordinator_config(label: str, task: str, bots: int, demos: int) -> dict[str, Any]:
+    """One campaign `network` of `task`, a slot per bot, every episode labelled."""
     return {
         "capacity": bots,
         "spare_servers": 0,
-        "teleop_host": link.address_b,  # the bots' observers reach the servers over the link
         "admission": {"live_sessions_per_address": 256, "joins_per_minute_per_address": 600},
-        "teleop": {"recording": {"labels": {"network_condition": condition.name}}},
+        "teleop": {"recording": {"labels": {"network_condition": label}}},
         "campaigns": [
             {"name": "network", "tasks": [task], "demos_required": demos, "time_limit_s": 3600}
         ],
     }
+
+
+@contextlib.contextmanager
+def platform_over_link(
+    up: LinkSettings,
+    down: LinkSettings,
+    config: dict[str, Any],
+    folder: Path,
+    admin_token: str,
+) -> Iterator[tuple[EmulatedLink, str]]:
+    """A coordinator (with `config`, its teleop servers listening on the link's address) in
+    namespace B behind an emulated link; yields the link and the URL bots in A join at."""
+    with emulated_link(up, down) as link:
+        config = {**config, "teleop_host": link.address_b}
+        (folder / "coord.json").write_text(json.dumps(config))
+        log = folder / "coord.log"
+        serve = [sys.executable, "-m", "crowdteleop", "serve", "--host", link.address_b]
+        serve += ["--port", str(COORD_PORT), "--admin-token", admin_token]
+        serve += ["--data-dir", str(folder / "data"), "--config", str(folder / "coord.json")]
+        with log.open("w") as log_file:
+            coordinator = subprocess.Popen(
+                link.run_in("b", serve), stdout=subprocess.PIPE, stderr=log_file, text=True
+            )
+        try:
+            yield link, _ready_url(coordinator, 90.0, log)
+        finally:
+            coordinator.send_signal(signal.SIGINT)
+            try:
+                coordinator.wait(60)
+            except subprocess.TimeoutExpired:
+                coordinator.kill()
+                coordinator.wait()
+
+
+def crowd_command(
+    url: str, bots: int, task: str, admin_token: str, timeout_s: float, report: Path
+) -> list[str]:
+    """`crowdteleop bot --coordinator ...` for `bots` bots of the `network` campaign."""
+    crowd = [sys.executable, "-m", "crowdteleop", "bot", "--coordinator", url]
+    crowd += ["--count", str(bots), "--admin-token", admin_token]
+    crowd += ["--campaign", "network", "--task", task, "--timeout", str(timeout_s)]
+    return [*crowd, "--json", str(report)]
 
 
 def run_condition(
@@ -116,40 +158,19 @@ def run_condition(
     folder.mkdir(parents=True)
     started = time.monotonic()
     settings = condition.link(seed, bots)
-    with emulated_link(settings, settings.model_copy(update={"seed": seed + 1})) as link:
-        config = _coordinator_config(condition, task, bots, demos_per_bot, link)
-        (folder / "coord.json").write_text(json.dumps(config))
-        log = folder / "coord.log"
-        serve = [sys.executable, "-m", "crowdteleop", "serve", "--host", link.address_b]
-        serve += ["--port", str(COORD_PORT), "--admin-token", admin_token]
-        serve += ["--data-dir", str(folder / "data"), "--config", str(folder / "coord.json")]
-        with log.open("w") as log_file:
-            coordinator = subprocess.Popen(
-                link.run_in("b", serve), stdout=subprocess.PIPE, stderr=log_file, text=True
+    config = coordinator_config(condition.name, task, bots, demos_per_bot)
+    down = settings.model_copy(update={"seed": seed + 1})
+    with platform_over_link(settings, down, config, folder, admin_token) as (link, url):
+        report = folder / "crowd.json"
+        with (folder / "crowd.log").open("w") as crowd_log:
+            subprocess.run(
+                link.run_in("a", crowd_command(url, bots, task, admin_token, timeout_s, report)),
+                stdout=crowd_log,
+                stderr=subprocess.STDOUT,
+                timeout=timeout_s + 300,
             )
-        try:
-            url = _ready_url(coordinator, 90.0, log)
-            report = folder / "crowd.json"
-            crowd = [sys.executable, "-m", "crowdteleop", "bot", "--coordinator", url]
-            crowd += ["--count", str(bots), "--admin-token", admin_token]
-            crowd += ["--campaign", "network", "--task", task, "--timeout", str(timeout_s)]
-            crowd += ["--json", str(report)]
-            with (folder / "crowd.log").open("w") as crowd_log:
-                subprocess.run(
-                    link.run_in("a", crowd),
-                    stdout=crowd_log,
-                    stderr=subprocess.STDOUT,
-                    timeout=timeout_s + 300,
-                )
-            run = ConditionRun(condition.name, task, folder / "data" / "episodes")
-            run.crowd = json.loads(report.read_text()) if report.exists() else {}
-            run.link = link.stats()
-        finally:
-            coordinator.send_signal(signal.SIGINT)
-            try:
-                coordinator.wait(60)
-            except subprocess.TimeoutExpired:
-                coordinator.kill()
-                coordinator.wait()
+        run = ConditionRun(condition.name, task, folder / "data" / "episodes")
+        run.crowd = json.loads(report.read_text()) if report.exists() else {}
+        run.link = link.stats()
     run.seconds = time.monotonic() - started
     return run

@@ -4,6 +4,7 @@ link decide its fate (`shaping.Direction`), and writes it into the other's at it
 Run by `linkemu.netns.emulated_link`; standalone:
 `python -m crowdteleop.linkemu.forwarder NS_A NS_B --up JSON --down JSON [--stats FILE]`,
 where JSON is a `LinkSettings` (up: A to B). Prints `ready` once both devices are up.
+SIGUSR1 cuts the link both ways (every packet lost, as a pulled cable), SIGUSR2 restores it.
 """
 
 from __future__ import annotations
@@ -87,6 +88,13 @@ async def forward(
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, stop.set)
+
+    def cut(is_cut: bool) -> None:
+        for pipe in pipes.values():
+            pipe.link.is_cut = is_cut
+
+    loop.add_signal_handler(signal.SIGUSR1, cut, True)
+    loop.add_signal_handler(signal.SIGUSR2, cut, False)
     print("ready", flush=True)
     while not stop.is_set():
         with contextlib.suppress(TimeoutError):

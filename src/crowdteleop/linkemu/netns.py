@@ -13,6 +13,7 @@ import contextlib
 import json
 import os
 import secrets
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator, Sequence
@@ -37,6 +38,14 @@ class EmulatedLink:
     address_a: str
     address_b: str
     stats_path: Path
+    forwarder_pid: int
+
+    def cut(self) -> None:
+        """Every packet lost both ways from now on, as a pulled cable, until `restore`."""
+        os.kill(self.forwarder_pid, signal.SIGUSR1)
+
+    def restore(self) -> None:
+        os.kill(self.forwarder_pid, signal.SIGUSR2)
 
     def namespace(self, side: Side) -> str:
         return self.namespace_a if side == "a" else self.namespace_b
@@ -87,7 +96,7 @@ def emulated_link(
         if forwarder.stdout.readline().strip() != "ready":
             forwarder.wait(10)
             raise LinkUnavailableError(f"the forwarder did not start: {forwarder.stderr.read()}")
-        yield EmulatedLink(names[0], names[1], ADDRESS_A, ADDRESS_B, stats)
+        yield EmulatedLink(names[0], names[1], ADDRESS_A, ADDRESS_B, stats, forwarder.pid)
     finally:
         if forwarder is not None:
             forwarder.terminate()

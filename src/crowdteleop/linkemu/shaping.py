@@ -71,6 +71,7 @@ class Counters:
     packets_in: int = 0
     lost: int = 0  # random loss
     dropped: int = 0  # queue full
+    cut: int = 0  # arrived while the link was cut
     delivered_bytes: int = 0
 
 
@@ -122,6 +123,7 @@ class Direction:
         self._queued_bytes = 0
         self._link_free_s = 0.0
         self._trace = TraceService(settings.trace_ms) if settings.trace_ms else None
+        self.is_cut = False  # a cable pulled: everything arriving is lost until restored
 
     def queued_bytes(self, now_s: float) -> int:
         while self._in_queue and self._in_queue[0][0] <= now_s:
@@ -131,6 +133,9 @@ class Direction:
     def push(self, size: int, now_s: float) -> float | None:
         settings, counters = self.settings, self.counters
         counters.packets_in += 1
+        if self.is_cut:
+            counters.cut += 1
+            return None
         if settings.loss and self._rng.random() < settings.loss:
             counters.lost += 1
             return None
