@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
+import signal
 import subprocess
 import time
 
+import httpx
 import pytest
 
 from crowdteleop.crowd.experiment import coordinator_config, crowd_command, platform_over_link
+from crowdteleop.crowd.worker import CrowdSettings, run_crowd
 from crowdteleop.dataset.build import episode_files, read_inputs
 from crowdteleop.linkemu.shaping import LinkSettings
+from tests.fixtures.coord import ADMIN as ADMIN_COORD
+from tests.fixtures.coord import auth, coord_server
 
 pytestmark = pytest.mark.slow
 ADMIN = "faults-admin-token-0123456789"
@@ -51,3 +57,59 @@ def test_a_workers_path_cut_for_5_s_resumes_and_the_worker_completes(tmp_path):
     episodes, bad = read_inputs(episode_files([tmp_path / "data" / "episodes"]))
     assert not bad, "every recorded episode, the one cut through included, reads back"
     assert len(episodes) >= len(worker["outcomes"])
+
+
+def test_a_killed_teleop_server_is_noticed_the_worker_told_and_given_a_new_robot(tmp_path):
+    """kill -9 of a worker's teleop server mid-episode: the coordinator notices within 5 s,
+    tells the worker, gives them a new robot with their count kept (the bot reconnects as
+    the page does), and the partial episode is kept, as a crash."""
+    campaign = {**coordinator_config("kill", "lift", 1, 3)["campaigns"][0], "name": "crowd"}
+    with coord_server(tmp_path, capacity=1, campaigns=[campaign]) as coord:
+        settings = CrowdSettings(coord.url, ADMIN_COORD, campaign="crowd", session_timeout_s=300)
+
+        async def scenario() -> tuple[list, float]:
+            async with httpx.AsyncClient(base_url=coord.url, headers=auth(ADMIN_COORD)) as http:
+                crowd = asyncio.create_task(run_crowd(settings, 1))
+                server = await _live_server(http, crowd)
+                await asyncio.sleep(1.5)  # mid-episode
+                os.kill(server["pid"], signal.SIGKILL)
+                killed = time.monotonic()
+                while await _still_serving(http, server):
+                    assert time.monotonic() - killed < 30
+                    await asyncio.sleep(0.1)
+                noticed_s = time.monotonic() - killed
+                return await asyncio.wait_for(crowd, 400), noticed_s
+
+        reports, noticed_s = asyncio.run(scenario())
+    worker = reports[0]
+    assert noticed_s < 5.0, f"the coordinator noticed after {noticed_s:.1f} s"
+    assert worker.error is None and worker.completion_code, worker
+    assert worker.reconnects == 1
+    assert any("new robot is on its way" in notice for notice in worker.notices), worker.notices
+    episodes, _ = read_inputs(episode_files([coord.data_dir / "episodes"]))
+    outcomes = [episode.outcome for _, episode in episodes]
+    assert outcomes.count("crash") == 1, f"the partial episode is kept as a crash: {outcomes}"
+    crash = next(episode for _, episode in episodes if episode.outcome == "crash")
+    assert crash.recovered and crash.steps > 0
+    assert outcomes.count("success") >= 3
+
+
+async def _live_server(http: httpx.AsyncClient, crowd: asyncio.Task) -> dict:
+    """The bot's teleop server, once the bot has driven it for a moment."""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        assert not crowd.done(), crowd.result()
+        overview = (await http.get("/api/admin/overview")).json()
+        servers = [s for s in overview["teleop_servers"] if s["alive"] and s["pid"]]
+        ready = [s for s in overview["sessions"] if s["state"] == "ready"]
+        if servers and ready and time.time() - ready[0]["ready_at"] > 1.0:
+            return servers[0]
+        await asyncio.sleep(0.2)
+    raise AssertionError("the bot never got a robot")
+
+
+async def _still_serving(http: httpx.AsyncClient, server: dict) -> bool:
+    overview = (await http.get("/api/admin/overview")).json()
+    same = [s for s in overview["teleop_servers"] if s["pid"] == server["pid"]]
+    ready = [s for s in overview["sessions"] if s["session_id"] == server["session_id"]]
+    return bool(same and same[0]["alive"] and ready and ready[0]["state"] == "ready")

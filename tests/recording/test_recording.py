@@ -271,6 +271,13 @@ def test_recover_orphans_finalizes_abandoned_logs_as_crashes(tmp_path):
     assert recover_orphans(tmp_path / "missing") == []
 
 
+def test_a_log_that_died_before_its_first_flush_is_removed_not_kept_empty(tmp_path):
+    record(tmp_path, 0, "empty").close()  # the header is on disk, no step yet
+    assert (tmp_path / "empty.wal").exists()
+    assert recover_orphans(tmp_path) == []
+    assert list(tmp_path.iterdir()) == [], "no episode without steps for dataset build to trip on"
+
+
 def test_recover_orphans_after_a_crash_inside_finalize(tmp_path):
     # Killed after the file's rename, before the log's removal: the finished file wins.
     recorder = record(tmp_path, 4, "renamed", flush_interval_s=0.0)
@@ -330,6 +337,10 @@ def test_kill_9_keeps_every_step_up_to_the_last_reported_flush(tmp_path, flushes
         assert reported > 0
     assert_holds_child_steps(partial, partial.steps)  # every durable step, bit for bit
     assert partial.model_xml == child.METADATA["model_xml"]
+    if partial.steps == 0:  # killed before its first flush: nothing to keep
+        assert recover_orphans(tmp_path) == []
+        assert not (tmp_path / "killed.wal").exists()
+        return
     assert recover_orphans(tmp_path) == [tmp_path / "killed.hdf5"]
     episode = read_episode(tmp_path / "killed.hdf5")
     assert episode.outcome == "crash"

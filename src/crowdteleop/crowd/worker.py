@@ -53,6 +53,8 @@ class WorkerReport:
     fps: float = 0.0
     completion_code: str | None = None
     error: str | None = None
+    reconnects: int = 0  # new robots after a crash or hang, as the page reconnects
+    notices: list[str] = field(default_factory=list)  # what the coordinator told meanwhile
 
     @property
     def latency_p50_ms(self) -> float | None:
@@ -63,6 +65,10 @@ class WorkerReport:
         return float(np.percentile(self.latency_ms, 95)) if self.latency_ms else None
 
 
+class _RobotReplacedError(Exception):
+    """The coordinator gave the session a new teleop server (the old one crashed or hung)."""
+
+
 async def _drive(
     api: WorkerApi, report: WorkerReport, settings: CrowdSettings, index: int, joined_at: float
 ) -> None:
@@ -71,6 +77,20 @@ async def _drive(
     report.task = view.task
     if settings.task is not None and view.task != settings.task:
         raise ValueError(f"the campaign assigned {view.task!r}, not {settings.task!r}")
+    while True:
+        try:
+            await _one_robot(api, report, settings, index, joined_at)
+            return
+        except _RobotReplacedError:
+            # As the page does: show the notice, wait for the new robot, connect again.
+            report.reconnects += 1
+            await api.until_ready(settings.queue_timeout_s)
+
+
+async def _one_robot(
+    api: WorkerApi, report: WorkerReport, settings: CrowdSettings, index: int, joined_at: float
+) -> None:
+    """Connect to the session's current teleop server and drive it."""
     access = await api.teleop_access(settings.admin_token)
     worker = TeleopClient(access.url, "", role="worker", device="bot", offer_via=api.offer)
     observer = TeleopClient(
@@ -96,8 +116,9 @@ async def _drive(
             worker.latency = driver.latency  # the phone commands, the page shows the frames
             report.device = "phone"
         await worker.wait_for(lambda state: state.frames_received > 0, 60)
-        report.first_frame_s = time.monotonic() - joined_at
-        bot = Bot(driver, seed=index, observer=observer)
+        if report.first_frame_s is None:
+            report.first_frame_s = time.monotonic() - joined_at
+        bot = Bot(driver, seed=index + 1000 * report.reconnects, observer=observer)
         streaming = asyncio.create_task(bot.stream(30.0))
         try:
             if settings.window_s is not None:
@@ -106,7 +127,7 @@ async def _drive(
                 try:
                     await _until_done(api, worker, report, settings.session_timeout_s)
                 finally:  # what the worker saw, also when it did not finish
-                    report.latency_ms = list(worker.latency.samples_ms)
+                    report.latency_ms += worker.latency.samples_ms
                     report.fps = worker.state.fps()
         finally:
             streaming.cancel()
@@ -136,14 +157,19 @@ async def _until_done(
     """Episodes as they end, until the coordinator hands over the completion code."""
     started = last_end = time.monotonic()
     code_at: float | None = None
+    heard = 0  # episodes this connection has reported
+    robot_since = api.view.ready_at if api.view is not None else None
     while True:
         episodes = worker.state.episodes
-        while len(report.outcomes) < len(episodes):
+        while heard < len(episodes):
             now = time.monotonic()
-            report.outcomes.append(episodes[len(report.outcomes)].outcome)
+            report.outcomes.append(episodes[heard].outcome)
             report.episode_s.append(now - last_end)
-            last_end = now
+            last_end, heard = now, heard + 1
         view = await api.refresh()
+        if view.state in ("queued", "starting") or view.ready_at != robot_since:
+            report.notices.append(view.notice or "")
+            raise _RobotReplacedError(view.notice)
         if view.completion_code:
             report.completion_code = view.completion_code
             if report.outcomes.count("success") >= view.demos_required:

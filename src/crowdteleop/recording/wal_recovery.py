@@ -28,8 +28,9 @@ def recover_orphans(directory: Path) -> list[Path]:
     """Finalize, with outcome "crash", every log no live recorder holds; returns the files.
 
     A log whose episode file already exists (a crash between the file's rename and the log's
-    removal) is simply removed. A log with a damaged header is renamed ``*.wal.corrupt`` and
-    kept for a person to look at. Stale temporary files are removed.
+    removal), or that holds no step (a crash before its first flush), is simply removed. A log
+    with a damaged header is renamed ``*.wal.corrupt`` and kept for a person to look at. Stale
+    temporary files are removed.
     """
     directory = Path(directory)
     if not directory.is_dir():
@@ -72,6 +73,13 @@ def _recover_one(wal: Path) -> Path | None:
             wal.rename(wal.with_name(wal.name + ".corrupt"))
             return None
         path = wal.with_name(partial.episode_id + EPISODE_SUFFIX)
+        if len(partial.actions) == 0 and not is_readable(path):
+            # Died before its first flush: nothing to keep, and an episode without steps
+            # would only make `dataset build` stop on it.
+            log.info("%s holds no steps: removed", wal)
+            wal.unlink()
+            fsync_directory(wal.parent)
+            return None
         if not is_readable(path):
             extra = {"ignored_tail_bytes": partial.ignored_tail_bytes}
             write_episode(path, partial, "crash", extra, recovered=True)
