@@ -16,6 +16,7 @@ from crowdteleop.crowd.experiment import coordinator_config, crowd_command, plat
 from crowdteleop.crowd.worker import CrowdSettings, run_crowd
 from crowdteleop.dataset.build import episode_files, read_inputs
 from crowdteleop.linkemu.shaping import LinkSettings
+from crowdteleop.recording.episode_file import read_episode
 from tests.fixtures.coord import ADMIN as ADMIN_COORD
 from tests.fixtures.coord import auth, coord_server
 
@@ -113,3 +114,32 @@ async def _still_serving(http: httpx.AsyncClient, server: dict) -> bool:
     same = [s for s in overview["teleop_servers"] if s["pid"] == server["pid"]]
     ready = [s for s in overview["sessions"] if s["session_id"] == server["session_id"]]
     return bool(same and same[0]["alive"] and ready and ready[0]["state"] == "ready")
+
+
+def test_a_full_recording_disk_is_told_to_the_worker_and_no_half_file_is_a_demo(tmp_path):
+    """The recorder's disk (a 400 kB tmpfs) fills after about two episodes: the worker hears
+    that each later episode was not saved and that recording stopped; what is stored as a
+    demonstration reads back whole, and the coordinator counts exactly those."""
+    episodes_dir = tmp_path / "coord" / "episodes"
+    episodes_dir.mkdir(parents=True)
+    mount = ["mount", "-t", "tmpfs", "-o", "size=400k", "tmpfs", str(episodes_dir)]
+    subprocess.run(mount, check=True)
+    try:
+        campaign = {**coordinator_config("full", "lift", 1, 5)["campaigns"][0], "name": "crowd"}
+        with coord_server(tmp_path, capacity=1, campaigns=[campaign]) as coord:
+            settings = CrowdSettings(
+                coord.url, ADMIN_COORD, campaign="crowd", session_timeout_s=120
+            )
+            worker = asyncio.run(run_crowd(settings, 1))[0]
+            path = f"{coord.url}/api/admin/sessions/{worker.session_id}"
+            counted = httpx.get(path, headers=auth(ADMIN_COORD), timeout=10).json()
+        stored = sorted(episodes_dir.glob("*/*/success/*"))
+        demos = [read_episode(path) for path in stored]
+    finally:
+        subprocess.run(["umount", "-l", str(episodes_dir)], check=False)
+    assert worker.error and "disk is full" in worker.error, worker
+    assert any("could not be saved" in notice for notice in worker.notices), worker.notices
+    assert worker.completion_code is None
+    assert demos and all(demo.outcome == "success" and demo.steps > 0 for demo in demos)
+    assert all(path.suffix == ".hdf5" for path in stored), "no temporary file among the demos"
+    assert counted["demos_done"] == len(demos), "the coordinator counts what was stored"

@@ -65,6 +65,9 @@ class WorkerReport:
         return float(np.percentile(self.latency_ms, 95)) if self.latency_ms else None
 
 
+TOLD_CODES = {"not_saved", "recording_failed"}  # what a worker's page shows and a bot reports
+
+
 class _RobotReplacedError(Exception):
     """The coordinator gave the session a new teleop server (the old one crashed or hung)."""
 
@@ -158,6 +161,7 @@ async def _until_done(
     started = last_end = time.monotonic()
     code_at: float | None = None
     heard = 0  # episodes this connection has reported
+    errors_heard = 0
     robot_since = api.view.ready_at if api.view is not None else None
     while True:
         episodes = worker.state.episodes
@@ -166,6 +170,12 @@ async def _until_done(
             report.outcomes.append(episodes[heard].outcome)
             report.episode_s.append(now - last_end)
             last_end, heard = now, heard + 1
+        for event in worker.state.errors[errors_heard:]:
+            errors_heard += 1
+            if event.code in TOLD_CODES:
+                report.notices.append(event.message)
+            if event.code == "recording_failed":  # the page shows it; the worker stops
+                raise ConnectionError(f"the server said: {event.message}")
         view = await api.refresh()
         if view.state in ("queued", "starting") or view.ready_at != robot_since:
             report.notices.append(view.notice or "")

@@ -7,6 +7,7 @@ confirmed the file, then the coordinator gets an `EpisodeReport` (it counts demo
 from __future__ import annotations
 
 import asyncio
+import errno
 import logging
 from typing import Any
 
@@ -14,7 +15,7 @@ from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.episode import FinishedEpisode
 from crowdteleop.teleop.messages import EpisodeReport
 from crowdteleop.teleop.peering import PeerSet
-from crowdteleop.teleop.protocol import EpisodeEnded, EpisodeSaved
+from crowdteleop.teleop.protocol import EpisodeEnded, EpisodeSaved, ErrorEvent
 from crowdteleop.teleop.report import report_episode
 from crowdteleop.teleop.session import TeleopSession
 from crowdteleop.teleop.telemetry import SessionTelemetry
@@ -60,9 +61,19 @@ class EpisodeArchive:
     ) -> None:
         try:
             uri = await session.store(finished, {"telemetry": telemetry})
-        except Exception:
+        except Exception as error:
             log.exception("storing episode %s failed", finished.episode_id)
             self._telemetry.errors["storage"] += 1
+            cause = error.__cause__ if isinstance(error.__cause__, OSError) else error
+            full = isinstance(cause, OSError) and cause.errno == errno.ENOSPC
+            why = "the server's disk is full" if full else "the server could not store it"
+            self._peers.broadcast(
+                ErrorEvent(
+                    code="not_saved",
+                    message=f"Episode {finished.number} could not be saved ({why}), so it "
+                    "does not count. Please tell the study team.",
+                )
+            )
             return
         if uri is None:
             return

@@ -38,7 +38,7 @@ from crowdteleop.teleop.messages import (
 from crowdteleop.teleop.origin import origin_allowed
 from crowdteleop.teleop.peering import PeerSet
 from crowdteleop.teleop.peers import Peer
-from crowdteleop.teleop.protocol import Hello, json_schema
+from crowdteleop.teleop.protocol import ErrorEvent, Hello, json_schema
 from crowdteleop.teleop.session import TeleopSession
 from crowdteleop.teleop.telemetry import SessionTelemetry
 from crowdteleop.teleop.video import FrameSource, configure_encoder_bitrates
@@ -73,6 +73,7 @@ class TeleopServer:
             self.telemetry_snapshot,
         )
         self.archive = EpisodeArchive(self.peers, self.telemetry)
+        self._told_recording_failure: str | None = None  # what the peers last heard of it
         self.session: TeleopSession
         self.dispatcher: Dispatcher
         self._loop_task: asyncio.Task[None] | None = None
@@ -262,6 +263,19 @@ class TeleopServer:
 
     async def _one_tick(self) -> None:
         result = await self.session.tick(want_privileged=bool(self.peers.admins()))
+        failure = self.session.recording_failure
+        if failure != self._told_recording_failure:
+            self._told_recording_failure = failure
+            if failure is not None:
+                self.telemetry.errors["recording"] += 1
+                self.peers.broadcast(
+                    ErrorEvent(
+                        code="recording_failed",
+                        message=f"Recording has stopped: {failure}. Your demonstrations "
+                        "cannot be saved now, so the robot holds still. Please tell the study "
+                        "team; this is not your fault.",
+                    )
+                )
         for finished in self.session.pop_finished():
             snapshot = self.telemetry_snapshot()
             self.archive.episode_ended(self.session, finished, self.config, snapshot)

@@ -8,6 +8,7 @@ and returns what the peers should see. `crowdteleop.teleop.server` moves that ov
 from __future__ import annotations
 
 import asyncio
+import errno
 import logging
 import time
 from collections.abc import Callable
@@ -21,7 +22,7 @@ from av import VideoFrame
 
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.teleoperator import Teleoperator
-from crowdteleop.recording.episode_file import CommandRecord
+from crowdteleop.recording.episode_file import CommandRecord, RecordingError
 from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.sim.factory import make_simulation
 from crowdteleop.sim.interface import Simulation
@@ -125,6 +126,8 @@ class TeleopSession:
         self._pending: list[SessionRequest] = []
         self._finished: list[FinishedEpisode] = []
         self.sim_errors = 0
+        # Why episodes cannot be recorded now (a full disk...): nothing moves until they can.
+        self.recording_failure: str | None = None
         self.teleop: Teleoperator  # set in _build (sim thread)
         self.tracker: EpisodeTracker
 
@@ -235,19 +238,32 @@ class TeleopSession:
         command = self.board.command()
         raw = self.board.raw_command()
         driver = self.board.driver
-        self.tracker.maybe_start(
-            command.engaged,
-            driver.device if driver else None,
-            self.teleop.sim.controller_state().tolist(),  # the sim thread is idle between ticks
-        )
+        try:
+            self.tracker.maybe_start(
+                command.engaged,
+                driver.device if driver else None,
+                self.teleop.sim.controller_state().tolist(),  # the sim thread is idle now
+            )
+        except (RecordingError, OSError) as error:  # the episode's log cannot be created
+            self._recording_failed(error)
+            return None
+        if self.recording_failure is not None and self.tracker.state == "running":
+            self.recording_failure = None  # a new episode's log was created: space again
         try:
             return await self._in_sim_thread(self._step, command, raw, want_privileged)
-        except Exception:  # a simulation failure ends the episode; the session lives on
+        except Exception as error:  # a simulation failure ends the episode; the session lives
             log.exception("simulation step failed")
             self.sim_errors += 1
+            if isinstance(error, RecordingError | OSError):
+                self._recording_failed(error)
             self._end("crash")
             self._pending.append(ResetScene())
             return None
+
+    def _recording_failed(self, error: BaseException) -> None:
+        cause = error.__cause__ if isinstance(error.__cause__, OSError) else error
+        full = isinstance(cause, OSError) and cause.errno == errno.ENOSPC
+        self.recording_failure = "the server's disk is full" if full else str(cause)
 
     def _step(
         self, command: DeviceCommand, raw: CommandRecord, want_privileged: bool
