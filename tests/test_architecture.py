@@ -30,7 +30,7 @@ MAY_IMPORT: dict[str, set[str]] = {
     "learn": BASE | {"tasks", "sim", "control", "recording", "dataset"},
     "web": set(),
     "linkemu": set(),
-    "coord": BASE | {"tasks", "teleop", "web"},
+    "coord": BASE | {"tasks", "recording", "teleop", "web"},
     "crowd": BASE | {"tasks", "sim", "control", "teleop", "client", "coord", "linkemu"},
     "cli": BASE
     | {"tasks", "sim", "control", "recording", "teleop", "client", "dataset", "learn", "coord"}

@@ -19,6 +19,7 @@ from crowdteleop.linkemu.shaping import LinkSettings
 from crowdteleop.recording.episode_file import read_episode
 from tests.fixtures.coord import ADMIN as ADMIN_COORD
 from tests.fixtures.coord import auth, coord_server
+from tests.fixtures.s3 import BUCKET, KEYS, MotoS3, moto_s3
 
 pytestmark = pytest.mark.slow
 ADMIN = "faults-admin-token-0123456789"
@@ -143,3 +144,51 @@ def test_a_full_recording_disk_is_told_to_the_worker_and_no_half_file_is_a_demo(
     assert demos and all(demo.outcome == "success" and demo.steps > 0 for demo in demos)
     assert all(path.suffix == ".hdf5" for path in stored), "no temporary file among the demos"
     assert counted["demos_done"] == len(demos), "the coordinator counts what was stored"
+
+
+def test_the_object_store_down_for_60_s_loses_and_duplicates_nothing(tmp_path):
+    """S3 stops while a bot records; its episodes wait in the spool (the campaign counts them
+    once spooled); the session ends during the outage; when the store returns every episode
+    is in the bucket exactly once and whole (the coordinator uploads what the ended session
+    left spooled)."""
+    with moto_s3() as store:
+        store.client().create_bucket(Bucket=BUCKET)
+        s3 = {"bucket": BUCKET, "endpoint_url": store.url, "prefix": "crowd", **KEYS}
+        storage = {"kind": "s3", "s3": s3, "saved_when": "spooled"}
+        campaign = {**coordinator_config("s3", "lift", 1, 4)["campaigns"][0], "name": "crowd"}
+        teleop = {"recording": {"storage": storage}}
+        with coord_server(tmp_path, capacity=1, campaigns=[campaign], teleop=teleop) as coord:
+            settings = CrowdSettings(
+                coord.url, ADMIN_COORD, campaign="crowd", session_timeout_s=200
+            )
+
+            async def outage() -> list:
+                crowd = asyncio.create_task(run_crowd(settings, 1))
+                deadline = time.monotonic() + 120
+                while not _objects(store):  # the first demonstration is up
+                    assert time.monotonic() < deadline and not crowd.done()
+                    await asyncio.sleep(0.2)
+                store.stop()
+                await asyncio.sleep(60.0)
+                store.start()
+                return await asyncio.wait_for(crowd, 300)
+
+            worker = asyncio.run(outage())[0]
+            deadline = time.monotonic() + 90
+            while len(_objects(store)) < 4 and time.monotonic() < deadline:
+                time.sleep(1.0)
+            keys = _objects(store)
+            bodies = [
+                store.client().get_object(Bucket=BUCKET, Key=key)["Body"].read() for key in keys
+            ]
+    assert worker.error is None and worker.completion_code, worker
+    assert len(keys) == len(set(keys)) == 4, f"every demonstration once: {keys}"
+    for number, body in enumerate(bodies):
+        path = tmp_path / f"check-{number}.hdf5"
+        path.write_bytes(body)
+        assert read_episode(path).outcome == "success"
+
+
+def _objects(store: MotoS3) -> list[str]:
+    listing = store.client().list_objects_v2(Bucket=BUCKET, Prefix="crowd/success/")
+    return sorted(item["Key"] for item in listing.get("Contents", []))

@@ -28,6 +28,7 @@ from crowdteleop.coord.private import prepare_data_dir
 from crowdteleop.coord.reaper import run_reaper
 from crowdteleop.coord.service import Coordinator
 from crowdteleop.coord.session_keys import SESSION_SECRET_FILE, SessionKeys
+from crowdteleop.coord.spools import run_spool_sweeper
 from crowdteleop.coord.store import Store
 from crowdteleop.web import qr
 
@@ -57,6 +58,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         watchers = [
             asyncio.create_task(run_reaper(coordinator), name="reaper"),
             asyncio.create_task(run_liveness(coordinator), name="liveness"),
+            asyncio.create_task(run_spool_sweeper(coordinator), name="spools"),
         ]
         try:
             yield
