@@ -96,6 +96,7 @@ def main() -> None:
     parser.add_argument("--bots", type=int, default=4, help="bots at once per condition")
     parser.add_argument("--demos", type=int, default=10, help="successful demos per bot")
     parser.add_argument("--out", type=Path, default=Path("out/network"))
+    parser.add_argument("--timeout", type=float, default=1200.0, help="per condition, s")
     args = parser.parse_args()
 
     wanted = set(args.conditions.split(","))
@@ -109,7 +110,7 @@ def main() -> None:
         for condition in conditions:
             with console.status(f"{task}, {condition.name}: {args.bots} bots ..."):
                 run = run_condition(
-                    condition, task, args.bots, args.demos, args.out, ADMIN, timeout_s=3600
+                    condition, task, args.bots, args.demos, args.out, ADMIN, args.timeout
                 )
             row = summarize(run)
             rows.append(row)

@@ -7,6 +7,7 @@ import json
 import os
 import signal
 import subprocess
+import threading
 import time
 
 import httpx
@@ -19,7 +20,7 @@ from crowdteleop.linkemu.shaping import LinkSettings
 from crowdteleop.recording.episode_file import read_episode
 from tests.fixtures.coord import ADMIN as ADMIN_COORD
 from tests.fixtures.coord import auth, coord_server
-from tests.fixtures.s3 import BUCKET, KEYS, MotoS3, moto_s3
+from tests.fixtures.s3 import BUCKET, KEYS, MotoS3, free_port, moto_s3
 
 pytestmark = pytest.mark.slow
 ADMIN = "faults-admin-token-0123456789"
@@ -192,3 +193,35 @@ def test_the_object_store_down_for_60_s_loses_and_duplicates_nothing(tmp_path):
 def _objects(store: MotoS3) -> list[str]:
     listing = store.client().list_objects_v2(Bucket=BUCKET, Prefix="crowd/success/")
     return sorted(item["Key"] for item in listing.get("Contents", []))
+
+
+def test_a_coordinator_killed_and_restarted_mid_session_the_bot_finishes(tmp_path):
+    """kill -9 of the coordinator while a bot drives: its teleop server stops with it; the
+    coordinator restarted on the same address and data finds the worker's session, gives it
+    a new robot with the count kept, and the bot (retrying as the page does) finishes."""
+    port = free_port()
+    campaign = {**coordinator_config("restart", "lift", 1, 4)["campaigns"][0], "name": "crowd"}
+    url = f"http://127.0.0.1:{port}"
+    settings = CrowdSettings(url, ADMIN_COORD, campaign="crowd", session_timeout_s=300)
+    outcome: dict = {}
+
+    def crowd() -> None:
+        outcome["reports"] = asyncio.run(run_crowd(settings, 1))
+
+    bots = threading.Thread(target=crowd)
+    with coord_server(tmp_path, "--port", str(port), capacity=1, campaigns=[campaign]) as first:
+        bots.start()
+        deadline = time.monotonic() + 120
+        while not list((tmp_path / "coord" / "episodes").glob("*/*/success/*.hdf5")):
+            assert time.monotonic() < deadline and bots.is_alive(), "no demonstration"
+            time.sleep(0.2)
+        first.process.kill()  # SIGKILL: no shutdown at all
+        first.process.wait(10)
+    time.sleep(3.0)  # down for a while; the bot's calls fail meanwhile
+    with coord_server(tmp_path, "--port", str(port), capacity=1, campaigns=[campaign]):
+        bots.join(timeout=400)
+    worker = outcome["reports"][0]
+    assert worker.error is None and worker.completion_code, worker
+    assert worker.reconnects >= 1, "a new robot after the restart"
+    stored = list((tmp_path / "coord" / "episodes").glob("*/*/success/*.hdf5"))
+    assert len(stored) == 4, "the count was kept: four demonstrations, no more"

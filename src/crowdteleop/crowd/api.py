@@ -24,7 +24,8 @@ from crowdteleop.coord.schemas import (
 from crowdteleop.teleop.messages import OfferAnswer
 
 Model = TypeVar("Model", bound=BaseModel)
-HEARTBEAT_S = 2.0  # as teleop.js: well inside the coordinator's 30 s heartbeat timeout
+HEARTBEAT_S = 2.0
+RECONNECT_S = 60.0  # as teleop.js: well inside the coordinator's 30 s heartbeat timeout
 
 
 class CoordinatorRefusedError(ConnectionError):
@@ -51,6 +52,25 @@ class WorkerApi:
         reply: type[Model],
         body: BaseModel | None = None,
         token: str | None = None,
+    ) -> Model:
+        """One call; while the coordinator cannot be reached (restarting), retried for up to
+        RECONNECT_S, as the page keeps heart-beating through an outage."""
+        deadline = asyncio.get_running_loop().time() + RECONNECT_S
+        while True:
+            try:
+                return await self._call_once(method, path, reply, body, token)
+            except aiohttp.ClientConnectionError:
+                if not self.token or asyncio.get_running_loop().time() > deadline:
+                    raise  # never joined: nothing to come back to
+                await asyncio.sleep(1.0)
+
+    async def _call_once(
+        self,
+        method: str,
+        path: str,
+        reply: type[Model],
+        body: BaseModel | None,
+        token: str | None,
     ) -> Model:
         bearer = self.token if token is None else token  # "": no credentials, as a phone
         headers = {"Authorization": f"Bearer {bearer}"} if bearer else {}
