@@ -135,7 +135,12 @@ def test_only_a_stall_of_every_worker_page_counts(tmp_path):
             await front.close()  # the page that saw video leaves: only the stalled one is left
             await back.wait_for(lambda s: s.status.video_stalled, 5)
             seen.append(True)
+            # the worker opens the link again: the new tab shows video, the arm is free
+            again = await connected(server)
+            await again.wait_for(lambda s: s.status is not None and not s.status.video_stalled, 5)
+            seen.append(False)
+            await again.close()
             await back.close()
             return seen
 
-        assert run(scenario()) == [False, True, False, True]
+        assert run(scenario()) == [False, True, False, True, False]

@@ -60,7 +60,7 @@ class TeleopServer:
             config.video,
             self.frames,
             on_message=self._on_message,
-            on_events_open=self._send_hello,
+            on_events_open=self._on_events_open,
             on_left=self._on_left,
         )
         self.broadcaster = TickBroadcaster(
@@ -222,6 +222,13 @@ class TeleopServer:
             self.broadcaster.status_soon()
         others = (other for other in self.peers if other is not peer)
         if self.session.board.set_video_stalled(worker_video_stalled(others)):
+            self.broadcaster.status_soon()
+
+    def _on_events_open(self, peer: Peer) -> None:
+        self._send_hello(peer)
+        # A page that has just joined shows its video (or soon will): a stall that only the
+        # other, hidden tab reported no longer holds the arm (as when a peer leaves).
+        if self.session.board.set_video_stalled(worker_video_stalled(self.peers)):
             self.broadcaster.status_soon()
 
     def _send_hello(self, peer: Peer) -> None:
