@@ -38,3 +38,12 @@ def test_old_round_trips_age_out_as_the_clocks_drift():
     for k in range(1, 17):
         clock.add_round_trip(float(k), k + 0.02, k * 1e3 + 10.0 + 1000.0)
     assert clock.best is not None and clock.best.offset_ms == pytest.approx(1000.0, abs=1e-6)
+
+
+def test_the_age_is_known_to_within_half_the_best_round_trip():
+    clock = ClientClock()
+    assert clock.uncertainty_ms() == 0.0
+    clock.add_round_trip(sent_s=10.0, received_s=10.8, client_ms=5_000.0)  # a slow 800 ms one
+    assert clock.uncertainty_ms() == pytest.approx(400.0)
+    clock.add_round_trip(sent_s=11.0, received_s=11.02, client_ms=6_010.0)
+    assert clock.uncertainty_ms() == pytest.approx(10.0), "a faster round trip narrows it"

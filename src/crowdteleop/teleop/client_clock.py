@@ -45,3 +45,7 @@ class ClientClock:
         if best is None:
             return None
         return now_s * 1e3 - (client_time_ms - best.offset_ms)
+
+    def uncertainty_ms(self) -> float:
+        """How far `age_ms` may be off: half the best round trip (0 before any)."""
+        return self.best.rtt_ms / 2 if self.best is not None else 0.0

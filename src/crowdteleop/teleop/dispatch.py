@@ -125,7 +125,9 @@ class Dispatcher:
             return False
         now = time.monotonic()
         age_ms = peer.clock.age_ms(message.client_time_ms, now)
-        if age_ms is None or age_ms <= self.max_input_age_ms:
+        # Refused only when surely too old: a page whose round trips were all slow (a tab
+        # just opened on a busy machine) has a rough clock offset, not necessarily old input.
+        if age_ms is None or age_ms - peer.clock.uncertainty_ms() <= self.max_input_age_ms:
             return False
         peer.guard.refuse("stale_input")
         if now - peer.stale_told_s >= STALE_NOTICE_EVERY_S:
