@@ -43,7 +43,9 @@ MARK = "BENCH-BOT "
 # --- one bot, in its own process -------------------------------------------------------------
 
 
-def bot_main(url: str, index: int, decode: bool, warmup_s: float, window_s: float) -> None:
+def bot_main(
+    url: str, index: int, decode: bool, warmup_s: float, window_s: float, gate: Path
+) -> None:
     import aiohttp
 
     if not decode:
@@ -52,7 +54,7 @@ def bot_main(url: str, index: int, decode: bool, warmup_s: float, window_s: floa
         disable_decoding()
     from crowdteleop.crowd.worker import CrowdSettings, visit
 
-    settings = CrowdSettings(url, ADMIN, window_s=window_s, warmup_s=warmup_s)
+    settings = CrowdSettings(url, ADMIN, window_s=window_s, warmup_s=warmup_s, start_gate=gate)
 
     async def run() -> Any:
         async with aiohttp.ClientSession() as http:
@@ -93,10 +95,14 @@ def _admin(url: str, path: str) -> Any:
     return httpx.get(f"{url}{path}", headers=headers, timeout=10).json()
 
 
-def _telemetry(url: str, session_id: str) -> dict[str, Any]:
+def _telemetry(url: str, session_id: str) -> dict[str, Any] | None:
+    """The session's teleop server's counters; None if it has no live server now (it was
+    replaced: liveness gave up on it, an overloaded server looks hung)."""
     import httpx
 
     access = _admin(url, f"/api/admin/sessions/{session_id}/teleop")
+    if "admin_token" not in access:
+        return None
     headers = {"Authorization": f"Bearer {access['admin_token']}"}
     telemetry: dict[str, Any] = httpx.get(
         f"{access['url']}/telemetry", headers=headers, timeout=10
@@ -111,11 +117,13 @@ def _percentile(values: list[float], q: float) -> float | None:
 def measure(n: int, warmup_s: float, window_s: float) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="bench-capacity-") as tmp:
         coordinator, url = _coordinator(Path(tmp), n)
+        gate = Path(tmp) / "all-ready"
         bots: list[subprocess.Popen[str]] = []
         try:
             for index in range(n):
                 command = [sys.executable, __file__, "--bot", url, "--index", str(index)]
                 command += ["--warmup", str(warmup_s), "--window", str(window_s)]
+                command += ["--gate", str(gate)]
                 command += ["--decode"] if index == 0 else []
                 bots.append(subprocess.Popen(command, stdout=subprocess.PIPE, text=True))
                 time.sleep(0.3)
@@ -124,11 +132,12 @@ def measure(n: int, warmup_s: float, window_s: float) -> dict[str, Any]:
                 if time.monotonic() > deadline:
                     raise TimeoutError(f"only {len(ready)} of {n} sessions ready after 180 s")
                 time.sleep(0.5)
-            time.sleep(warmup_s + 2.0)  # every bot past its first frame and warm-up
+            gate.touch()  # the bots' windows open now, after their warm-up
+            time.sleep(warmup_s + 1.0)
             before = {sid: _telemetry(url, sid) for sid in ready}
             psutil.cpu_percent()
             started = time.monotonic()
-            time.sleep(max(1.0, window_s - 4.0))
+            time.sleep(max(1.0, window_s - 2.0))
             cpu_percent = psutil.cpu_percent()
             wall = time.monotonic() - started
             after = {sid: _telemetry(url, sid) for sid in ready}
@@ -141,6 +150,9 @@ def measure(n: int, warmup_s: float, window_s: float) -> dict[str, Any]:
     on_time = []
     for sid, first in before.items():
         last = after[sid]
+        if first is None or last is None:
+            on_time.append(0.0)  # the session lost its robot in the window
+            continue
         ticks = last["ticks"] - first["ticks"]
         late, skipped = last["late"] - first["late"], last["skipped"] - first["skipped"]
         on_time.append((ticks - late) / (ticks + skipped) if ticks else 0.0)
@@ -238,9 +250,10 @@ def main() -> None:
     parser.add_argument("--bot", help=argparse.SUPPRESS)
     parser.add_argument("--index", type=int, default=0, help=argparse.SUPPRESS)
     parser.add_argument("--decode", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--gate", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.bot:
-        bot_main(args.bot, args.index, args.decode, args.warmup, args.window)
+        bot_main(args.bot, args.index, args.decode, args.warmup, args.window, args.gate)
         return
 
     from rich.console import Console

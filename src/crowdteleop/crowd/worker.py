@@ -9,6 +9,7 @@ import asyncio
 import contextlib
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import aiohttp
 import numpy as np
@@ -35,6 +36,7 @@ class CrowdSettings:
     # then leave (no completion code expected).
     window_s: float | None = None
     warmup_s: float = 5.0
+    start_gate: Path | None = None  # the window starts when this file exists (all bots ready)
 
 
 @dataclass
@@ -125,6 +127,7 @@ async def _one_robot(
         streaming = asyncio.create_task(bot.stream(30.0))
         try:
             if settings.window_s is not None:
+                await _wait_for_gate(settings.start_gate)
                 await _for_a_window(worker, report, settings.warmup_s, settings.window_s)
             else:
                 try:
@@ -139,6 +142,12 @@ async def _one_robot(
     finally:
         for client in clients:
             await client.close()
+
+
+async def _wait_for_gate(gate: Path | None) -> None:
+    """A load test's bots measure the same window: it opens when every robot is live."""
+    while gate is not None and not gate.exists():
+        await asyncio.sleep(0.1)
 
 
 async def _for_a_window(
