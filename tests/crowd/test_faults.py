@@ -224,4 +224,7 @@ def test_a_coordinator_killed_and_restarted_mid_session_the_bot_finishes(tmp_pat
     assert worker.error is None and worker.completion_code, worker
     assert worker.reconnects >= 1, "a new robot after the restart"
     stored = list((tmp_path / "coord" / "episodes").glob("*/*/success/*.hdf5"))
-    assert len(stored) == 4, "the count was kept: four demonstrations, no more"
+    # The count is kept: nothing stored is lost. A demonstration stored in the instant the
+    # coordinator died is kept but its report may be lost with it, so the worker may do one
+    # more than the campaign's four.
+    assert 4 <= len(stored) <= 5, stored
