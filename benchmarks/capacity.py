@@ -30,9 +30,8 @@ from typing import Any
 
 import psutil
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from tests.fixtures.ready import stop_gracefully, wait_ready
+from crowdteleop.teleop.ready import stop_gracefully, wait_ready
 
 ADMIN = "capacity-admin-token-0123456789"
 ON_TIME, MIN_FPS, P50_MS, P95_MS = 0.95, 18.0, 60.0, 100.0

@@ -116,7 +116,8 @@ class WorkerApi:
         """Wait in the queue as the page does; the session's view once it is ready."""
         deadline = asyncio.get_running_loop().time() + timeout_s
         while True:
-            self.view = await self._call("GET", f"/api/sessions/{self.session_id}", SessionView)
+            await self.refresh()
+            assert self.view is not None
             if self.view.state == "ready":
                 return self.view
             if self.view.state == "ended":

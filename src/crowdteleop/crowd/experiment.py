@@ -10,10 +10,8 @@ from __future__ import annotations
 import contextlib
 import json
 import shutil
-import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -22,6 +20,7 @@ from typing import Any
 
 from crowdteleop.linkemu.netns import EmulatedLink, emulated_link
 from crowdteleop.linkemu.shaping import LinkSettings
+from crowdteleop.teleop.ready import stop_gracefully, wait_ready
 
 QUEUE_BYTES = 64_000  # ~210 ms at 2.4 Mbps, ~1 s at 500 kbps: a cellular link's deep buffer
 COORD_PORT = 8000
@@ -68,25 +67,6 @@ class ConditionRun:
     seconds: float = 0.0
 
 
-def _ready_url(process: subprocess.Popen[str], timeout_s: float, log: Path) -> str:
-    found: list[str] = []
-
-    def read() -> None:
-        assert process.stdout is not None
-        for line in process.stdout:
-            if line.startswith("READY ") and not found:
-                found.append(line.split()[1])
-
-    threading.Thread(target=read, daemon=True).start()
-    deadline = time.monotonic() + timeout_s
-    while not found and time.monotonic() < deadline and process.poll() is None:
-        time.sleep(0.05)
-    if not found:
-        process.kill()
-        raise RuntimeError(f"the coordinator did not start: {log.read_text()[-2000:]}")
-    return found[0]
-
-
 def coordinator_config(label: str, task: str, bots: int, demos: int) -> dict[str, Any]:
     """One campaign `network` of `task`, a slot per bot, every episode labelled."""
     return {
@@ -122,14 +102,9 @@ def platform_over_link(
                 link.run_in("b", serve), stdout=subprocess.PIPE, stderr=log_file, text=True
             )
         try:
-            yield link, _ready_url(coordinator, 90.0, log)
+            yield link, wait_ready(coordinator, log, 90.0, "the coordinator")
         finally:
-            coordinator.send_signal(signal.SIGINT)
-            try:
-                coordinator.wait(60)
-            except subprocess.TimeoutExpired:
-                coordinator.kill()
-                coordinator.wait()
+            stop_gracefully(coordinator, 60)
 
 
 def crowd_command(

@@ -7,6 +7,7 @@ interface and ``crowdteleop.recording.spool`` a local spool in front of it.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
 import shutil
@@ -212,3 +213,10 @@ def fsync_directory(directory: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def disk_is_full(error: BaseException) -> bool:
+    """Whether a recording or storing failure comes down to a full disk (ENOSPC), raised
+    directly or as the cause of a RecordingError."""
+    cause = error.__cause__ if isinstance(error.__cause__, OSError) else error
+    return isinstance(cause, OSError) and cause.errno == errno.ENOSPC

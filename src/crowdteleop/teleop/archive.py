@@ -7,10 +7,10 @@ confirmed the file, then the coordinator gets an `EpisodeReport` (it counts demo
 from __future__ import annotations
 
 import asyncio
-import errno
 import logging
 from typing import Any
 
+from crowdteleop.recording.storage import disk_is_full
 from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.episode import FinishedEpisode
 from crowdteleop.teleop.messages import EpisodeReport
@@ -64,8 +64,7 @@ class EpisodeArchive:
         except Exception as error:
             log.exception("storing episode %s failed", finished.episode_id)
             self._telemetry.errors["storage"] += 1
-            cause = error.__cause__ if isinstance(error.__cause__, OSError) else error
-            full = isinstance(cause, OSError) and cause.errno == errno.ENOSPC
+            full = disk_is_full(error)
             why = "the server's disk is full" if full else "the server could not store it"
             self._peers.broadcast(
                 ErrorEvent(

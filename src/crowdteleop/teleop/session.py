@@ -8,7 +8,6 @@ and returns what the peers should see. `crowdteleop.teleop.server` moves that ov
 from __future__ import annotations
 
 import asyncio
-import errno
 import logging
 import time
 from collections.abc import Callable
@@ -23,7 +22,7 @@ from av import VideoFrame
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.teleoperator import Teleoperator
 from crowdteleop.recording.episode_file import CommandRecord, RecordingError
-from crowdteleop.recording.storage import EpisodeStorage
+from crowdteleop.recording.storage import EpisodeStorage, disk_is_full
 from crowdteleop.sim.factory import make_simulation
 from crowdteleop.sim.interface import Simulation
 from crowdteleop.sim.types import ContactEvent, Pose, TaskProgress
@@ -261,9 +260,7 @@ class TeleopSession:
             return None
 
     def _recording_failed(self, error: BaseException) -> None:
-        cause = error.__cause__ if isinstance(error.__cause__, OSError) else error
-        full = isinstance(cause, OSError) and cause.errno == errno.ENOSPC
-        self.recording_failure = "the server's disk is full" if full else str(cause)
+        self.recording_failure = "the server's disk is full" if disk_is_full(error) else str(error)
 
     def _step(
         self, command: DeviceCommand, raw: CommandRecord, want_privileged: bool
