@@ -119,12 +119,12 @@ async def _still_serving(http: httpx.AsyncClient, server: dict) -> bool:
 
 
 def test_a_full_recording_disk_is_told_to_the_worker_and_no_half_file_is_a_demo(tmp_path):
-    """The recorder's disk (a 400 kB tmpfs) fills after about two episodes: the worker hears
+    """The recorder's disk (a 600 kB tmpfs) fills after about three episodes: the worker hears
     that each later episode was not saved and that recording stopped; what is stored as a
     demonstration reads back whole, and the coordinator counts exactly those."""
     episodes_dir = tmp_path / "coord" / "episodes"
     episodes_dir.mkdir(parents=True)
-    mount = ["mount", "-t", "tmpfs", "-o", "size=400k", "tmpfs", str(episodes_dir)]
+    mount = ["mount", "-t", "tmpfs", "-o", "size=600k", "tmpfs", str(episodes_dir)]
     subprocess.run(mount, check=True)
     try:
         campaign = {**coordinator_config("full", "lift", 1, 5)["campaigns"][0], "name": "crowd"}
