@@ -7,6 +7,7 @@ whole; ``read_episode`` reads it back and refuses foreign or damaged files with
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import time
@@ -151,10 +152,16 @@ def write_episode(
     metadata, model_xml, env_args = split_metadata({**partial.metadata, **extra})
     model_xml = model_xml if model_xml is not None else partial.model_xml
     env_args = env_args if env_args is not None else partial.env_args
+    # HDF5 builds the file in memory; only plain writes touch the disk. A full disk then is
+    # an ordinary OSError (ENOSPC) here, never a failure inside HDF5's own I/O, which leaves
+    # the library in a state that can take the process down later.
+    image = io.BytesIO()
+    _write_hdf5(image, partial, outcome, metadata, model_xml, env_args, recovered)
     tmp = path.with_name(f".{path.name}.tmp")
     try:
-        _write_hdf5(tmp, partial, outcome, metadata, model_xml, env_args, recovered)
-        with open(tmp, "rb") as file:
+        with open(tmp, "wb") as file:
+            file.write(image.getbuffer())
+            file.flush()
             os.fsync(file.fileno())
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -165,7 +172,7 @@ def write_episode(
 
 
 def _write_hdf5(
-    tmp: Path,
+    image: io.BytesIO,
     partial: EpisodeData,
     outcome: str,
     metadata: dict[str, Any],
@@ -177,7 +184,7 @@ def _write_hdf5(
     dones = partial.success.astype(np.uint8)
     if n:
         dones[-1] = 1
-    with h5py.File(tmp, "w") as file:
+    with h5py.File(image, "w") as file:
         file.attrs.update(
             format=FILE_FORMAT,
             format_version=FILE_FORMAT_VERSION,
