@@ -22,7 +22,7 @@ from tests.fixtures.browser import (
     video_fingerprint,
     wait_js,
 )
-from tests.fixtures.coord import ADMIN, coord_server
+from tests.fixtures.coord import ADMIN, admin_teleop_client, coord_server
 
 pytestmark = pytest.mark.slow
 
@@ -91,11 +91,6 @@ async def _join(context: Any, url: str, query: str = JOIN) -> Any:
 async def _hand(page: Any) -> np.ndarray:
     """The end-effector position the server last reported to the page."""
     return np.array(await page.evaluate("crowdteleop.connection.state.status.end_effector"))
-
-
-def _admin_get(url: str, path: str) -> dict:
-    headers = {"Authorization": f"Bearer {ADMIN}"}
-    return httpx.get(f"{url}{path}", headers=headers, timeout=10).json()
 
 
 def _overview(url: str) -> dict:
@@ -209,14 +204,7 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path, screenshots
                 # 5. A scripted operator completes the task through the page's data channel;
                 #    the phone buzzes at the grasp; the completion code appears.
                 sid = await page.evaluate("crowdteleop.view.session_id")
-                access = _admin_get(coord.url, f"/api/admin/sessions/{sid}/teleop")
-                admin = TeleopClient(
-                    access["url"],
-                    access["token"],
-                    role="admin",
-                    admin_token=access["admin_token"],
-                    video=False,
-                )
+                admin = admin_teleop_client(coord.url, sid)
                 await admin.connect()
                 first_seq = await page.evaluate("crowdteleop.connection.messages.seq")
                 Bot(ThroughPage(admin, page, first_seq), seed=3)

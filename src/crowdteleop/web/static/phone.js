@@ -1,11 +1,14 @@
 // The phone controller: pair with a code, then the phone is a 6-DoF input device. With WebXR
-// (Android Chrome + ARCore) the phone's tracked pose is the device pose; otherwise its
-// orientation sensors give the rotation and the drag pads the translation.
+// (Android Chrome + ARCore) the phone's tracked pose, filtered (pose_filter.js), is the device
+// pose; otherwise its orientation sensors give the rotation and the drag pads the translation.
+// docs/phone.md says which phone gets which mode.
 
 import { call } from "./api.js";
 import { quatMultiply } from "./devices.js";
+import { PhonePoseFilter } from "./pose_filter.js";
 import { Protocol } from "./protocol.js";
 import { TeleopConnection } from "./rtc.js";
+import { XrTracker, arSupported } from "./xr.js";
 
 const $ = (id) => document.getElementById(id);
 const SEND_HZ = 30;
@@ -24,7 +27,12 @@ class PhoneState {
     this.gripper = false;
     this.source = "none";  // what moves the hand: "none", "orientation" or "xr"
     this.haptics = 0;  // haptic events received
-    this.xr = null;  // the WebXR session, while AR tracking runs
+    this.xr = null;  // the XrTracker, while AR tracking runs
+    this.tracking = "none";  // AR tracking: "none", "starting", "tracking" or "lost"
+    this.filter = null;  // the PhonePoseFilter of the AR session
+    this.rawPose = null;  // the last tracked pose before filtering (robot-style frame)
+    this.limited = false;  // the stroke reached its workspace limit
+    this.stallShown = false;
     this.ready = false;
     this.secure = window.isSecureContext;  // sensors and WebXR need https (or localhost)
     Object.seal(this);
@@ -94,30 +102,124 @@ async function enableOrientation() {
 }
 
 async function enableXR() {
-  if (!phone.secure) return;  // WebXR exists only in a secure context
-  if (!navigator.xr || !(await navigator.xr.isSessionSupported("immersive-ar").catch(() => false))) return;
+  if (!(await arSupported())) return;
   $("start-ar").hidden = false;
-  $("start-ar").onclick = async () => {
-    try {
-      const session = await navigator.xr.requestSession("immersive-ar", { requiredFeatures: ["local"] });
-      const gl = document.createElement("canvas").getContext("webgl", { xrCompatible: true });
-      session.updateRenderState({ baseLayer: new XRWebGLLayer(session, gl) });
-      const space = await session.requestReferenceSpace("local");
-      const frame = (time, xrFrame) => {
-        const pose = xrFrame.getViewerPose(space);
-        if (pose) {  // WebXR is y-up, -z forward; the robot frame is z-up, x forward
-          const { position: p, orientation: q } = pose.transform;
-          phone.position = [-p.z, -p.x, p.y];
-          phone.quaternion = [-q.z, -q.x, q.y, q.w];
-          phone.source = "xr";
-          $("motion").textContent = "6-DoF (AR tracking)";
-        }
-        session.requestAnimationFrame(frame);
-      };
-      session.requestAnimationFrame(frame);
-      phone.xr = session;
-    } catch (error) { banner("error", `AR tracking unavailable: ${error.message}`); }
+  $("start-ar").onclick = startXR;
+  $("recentre").onclick = () => {
+    if (!phone.filter || !phone.rawPose) return;
+    setClutch(false);  // the frame turns: the next stroke starts from here
+    phone.filter.recentreHeading(phone.rawPose.quaternion);
+    banner("info", "Re-centred: forward is where the phone points now.");
   };
+}
+
+const TRACKING_LOST = "The phone lost track of where it is, so the robot holds still. Point "
+  + "the camera at a well-lit, textured surface (not a blank wall), then let go of the hold "
+  + "button and press it again.";
+
+async function startXR() {
+  const filter = new PhonePoseFilter();
+  let recentred = false;
+  // The overlay is the whole page: the banner must show in AR too.
+  const tracker = new XrTracker($("phone-ui"), {
+    pose: ({ position, quaternion }, timeS) => {
+      if (!recentred) { filter.recentreHeading(quaternion); recentred = true; }
+      phone.rawPose = { position, quaternion };
+      const out = filter.update(position, quaternion, timeS);
+      if (out.glitch) {
+        setClutch(false);
+        banner("error", "Tracking jumped, so the robot stopped. Press the hold button again.");
+        return;
+      }
+      phone.position = out.position;
+      phone.quaternion = out.quaternion;
+      phone.limited = out.limited;
+    },
+    trackingLost: () => {
+      phone.tracking = "lost";
+      setClutch(false);
+      $("motion").textContent = "6-DoF: tracking lost";
+      banner("error", TRACKING_LOST);
+    },
+    trackingBack: () => {
+      const wasLost = phone.tracking === "lost";
+      phone.tracking = "tracking";
+      phone.source = "xr";
+      filter.reset();
+      $("motion").textContent = "6-DoF (AR tracking)";
+      if (wasLost) banner("info", "Tracking is back: press the hold button to move.");
+    },
+    // A touch on the screen that is not a control: hold anywhere to move.
+    selectStart: () => setClutch(true),
+    selectEnd: () => setClutch(false),
+    reset: () => {  // the system moved the origin (e.g. its own re-centre)
+      setClutch(false);
+      filter.reset();
+    },
+    ended: (reason) => {
+      setClutch(false);
+      phone.xr = null;
+      phone.filter = null;
+      phone.tracking = "none";
+      phone.source = "none";
+      $("start-ar").hidden = false;
+      $("recentre").hidden = true;
+      document.body.classList.remove("xr");
+      $("pad").textContent = "drag to move";
+      $("motion").textContent = "orientation sensors + drag";
+      banner("error", reason === "hidden"
+        ? "AR tracking stopped when the page was hidden. Tap \"Track phone in 3D\" to start again."
+        : "AR tracking ended. Tap \"Track phone in 3D\" to start again, or use the drag pads.");
+    },
+  });
+  phone.tracking = "starting";
+  try {
+    await tracker.start();
+  } catch (error) {
+    phone.tracking = "none";
+    banner("error", `AR tracking unavailable: ${error.message}. The drag pads still work.`);
+    return;
+  }
+  phone.xr = tracker;
+  phone.filter = filter;
+  $("start-ar").hidden = true;
+  $("recentre").hidden = false;
+  document.body.classList.add("xr");
+  $("pad").textContent = "touch and hold anywhere here to move";
+  $("motion").textContent = "6-DoF: starting";
+}
+
+// Holding the clutch moves the hand; it asks to drive if another device does. Refused while
+// AR tracking is not tracking: the pose would be stale.
+function setClutch(engaged) {
+  const c = phone.connection;
+  if (!c || phone.engaged === engaged) return;
+  if (engaged && phone.xr && phone.tracking !== "tracking") return;
+  const driver = c.state.status && c.state.status.controlling_device;
+  if (engaged && driver !== "phone") c.takeControl();
+  phone.engaged = engaged;
+  $("clutch").classList.toggle("held", engaged);
+  if (phone.filter) {
+    if (engaged) phone.filter.beginStroke(); else phone.filter.endStroke();
+  }
+  c.sendClutch(engaged);
+}
+
+// A haptic event: a vibration where the phone has one (not iOS), else a flash and a click.
+let audio = null;
+function buzz(intensity) {
+  if (navigator.vibrate) { navigator.vibrate(Math.round(20 + 60 * intensity)); return; }
+  document.body.classList.add("buzz");
+  setTimeout(() => document.body.classList.remove("buzz"), 120);
+  try {
+    audio ??= new AudioContext();
+    const tone = audio.createOscillator(), gain = audio.createGain();
+    gain.gain.value = 0.05 + 0.2 * intensity;
+    tone.frequency.value = 180;
+    tone.connect(gain).connect(audio.destination);
+    tone.start();
+    tone.stop(audio.currentTime + 0.05);
+  } catch { /* no audio: the flash is enough */ }
 }
 
 function dragPad(element, apply) {
@@ -142,16 +244,11 @@ function wireControls() {
   dragPad($("pad"), (dx, dy) => { phone.position[0] -= dy; phone.position[1] -= dx; });
   dragPad($("lift"), (dx, dy) => { phone.position[2] -= dy; });
   const clutch = $("clutch");
-  const press = (engaged) => {
-    if (phone.engaged === engaged) return;
-    const driver = c.state.status && c.state.status.controlling_device;
-    if (engaged && driver !== "phone") c.takeControl();  // holding the clutch asks to drive
-    phone.engaged = engaged;
-    clutch.classList.toggle("held", engaged);
-    c.sendClutch(engaged);
-  };
-  clutch.addEventListener("pointerdown", (e) => { e.preventDefault(); press(true); });
-  for (const type of ["pointerup", "pointercancel", "pointerleave"]) clutch.addEventListener(type, () => press(false));
+  clutch.addEventListener("pointerdown", (e) => { e.preventDefault(); setClutch(true); });
+  for (const type of ["pointerup", "pointercancel", "pointerleave"]) clutch.addEventListener(type, () => setClutch(false));
+  document.addEventListener("visibilitychange", () => {
+    if (document.visibilityState === "hidden") setClutch(false);  // a call, the lock button
+  });
   $("gripper").onclick = () => {
     phone.gripper = !phone.gripper;
     $("gripper").textContent = phone.gripper ? "Open gripper" : "Close gripper";
@@ -160,7 +257,7 @@ function wireControls() {
   c.addEventListener("haptic", ({ detail }) => {
     phone.haptics += 1;
     $("haptics").textContent = phone.haptics;
-    if (navigator.vibrate) navigator.vibrate(Math.round(20 + 60 * detail.intensity));
+    buzz(detail.intensity);
   });
   c.addEventListener("status", ({ detail }) => {
     $("driver").textContent = detail.controlling_device || "nobody";
@@ -168,7 +265,7 @@ function wireControls() {
       phone.stallShown = true;
       banner("error", "The video on your computer stopped, so the robot holds still. When it is "
         + "back, let go of the hold button and press it again.");
-    } else if (phone.stallShown || detail.controlling_device === "phone") {
+    } else if (phone.stallShown || (detail.controlling_device === "phone" && phone.tracking !== "lost")) {
       phone.stallShown = false;
       $("banner").className = "banner";
     }

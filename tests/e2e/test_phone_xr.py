@@ -1,0 +1,272 @@
+"""The phone's AR mode in real headless Chromium with an emulated WebXR phone (Meta's IWER,
+vendored from npm), against a real coordinator, teleop server and WebRTC.
+
+IWER emulates the WebXR runtime, not Chrome's DOM overlay, so the test adds what Chrome on
+Android does with `domOverlay`: the overlay root is shown above the XR layer, a touch in it
+first fires `beforexrselect` at the touched element, and unless a handler cancels it the
+session fires `selectstart` / `selectend`. Tracking loss is the runtime returning no viewer
+pose."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+import httpx
+import numpy as np
+import pytest
+
+from tests.fixtures.browser import browser_context, centre, require_chromium, touch, wait_js
+from tests.fixtures.coord import admin_teleop_client, auth, coord_server
+
+pytestmark = pytest.mark.slow
+
+IWER = Path(__file__).parents[1] / "fixtures" / "vendor" / "iwer-2.5.0.min.js"
+CAMPAIGN = {
+    "name": "xr",
+    "title": "Phone AR",
+    "instructions": "Lift the cube.",
+    "demos_required": 5,
+    "time_limit_s": 600,
+}
+# The emulated phone and Chrome's DOM overlay, installed before the page's scripts run.
+EMULATED_PHONE = """
+(() => {
+  const device = new IWER.XRDevice({
+    name: "Emulated Android phone", controllerConfig: undefined,
+    supportedSessionModes: ["inline", "immersive-ar"],
+    supportedFeatures: ["viewer", "local", "dom-overlay"],
+    supportedFrameRates: [60], isSystemKeyboardSupported: false, internalNominalFrameRate: 60,
+  });
+  device.installRuntime({ forceInstall: true });
+  window.emulatedPhone = device;
+  window.xrRequests = [];
+  window.trackingLost = false;
+  const getViewerPose = XRFrame.prototype.getViewerPose;
+  XRFrame.prototype.getViewerPose = function (space) {
+    return window.trackingLost ? null : getViewerPose.call(this, space);
+  };
+  const requestSession = navigator.xr.requestSession.bind(navigator.xr);
+  navigator.xr.requestSession = async (mode, init = {}) => {
+    const root = init.domOverlay && init.domOverlay.root;
+    window.xrRequests.push({ mode, required: init.requiredFeatures || [],
+      optional: init.optionalFeatures || [], overlayRoot: root ? root.id : null });
+    const session = await requestSession(mode, init);
+    if (root && (init.optionalFeatures || []).includes("dom-overlay")) {
+      Object.defineProperty(session, "domOverlayState", { value: { type: "screen" } });
+      root.style.position = "relative";
+      root.style.zIndex = "1000";  // above IWER's XR layer (999), as Chrome shows the overlay
+      let selecting = false;
+      root.addEventListener("pointerdown", (event) => {
+        const before = new Event("beforexrselect", { bubbles: true, cancelable: true });
+        event.target.dispatchEvent(before);
+        selecting = !before.defaultPrevented;
+        if (selecting) session.dispatchEvent(new Event("selectstart"));
+      }, true);
+      for (const type of ["pointerup", "pointercancel"]) {
+        root.addEventListener(type, () => {
+          if (selecting) session.dispatchEvent(new Event("selectend"));
+          selecting = false;
+        }, true);
+      }
+      session.addEventListener("end", () => { root.style.zIndex = ""; });
+    }
+    return session;
+  };
+})();
+"""
+STEPS = 60  # the path, at 30 poses a second
+PATH_ROBOT_M = np.array([0.10, 0.05, 0.05])  # forward, left, up: the hand should do the same
+PATH_YAW_DEG = 20.0
+
+
+def _quat_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return math.degrees(2 * math.acos(min(1.0, abs(float(np.dot(a, b))))))
+
+
+def _relative(after: np.ndarray, before: np.ndarray) -> np.ndarray:
+    """after * before^-1 (x, y, z, w)."""
+    x1, y1, z1, w1 = after
+    x2, y2, z2, w2 = -before[0], -before[1], -before[2], before[3]
+    return np.array(
+        [
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+        ]
+    )
+
+
+async def _worker_with_robot(url: str) -> tuple[httpx.AsyncClient, str, str]:
+    """A worker who joined and got a robot; the phone link its page's QR code holds."""
+    http = httpx.AsyncClient(base_url=url, timeout=30)
+    joined = (
+        await http.post(
+            "/api/join", json={"params": {"PROLIFIC_PID": "xr-worker"}, "campaign": "xr"}
+        )
+    ).json()
+    http.headers.update(auth(joined["worker_token"]))
+    sid = (await http.post("/api/sessions")).json()["session_id"]
+    deadline = time.monotonic() + 150
+    while (await http.get(f"/api/sessions/{sid}")).json()["state"] != "ready":
+        assert time.monotonic() < deadline, "the robot never became ready"
+        await http.post(f"/api/sessions/{sid}/heartbeat")
+        await asyncio.sleep(0.5)
+    pairing = (await http.post(f"/api/sessions/{sid}/pairing")).json()
+    link = urlsplit(pairing["phone_url"])
+    return http, sid, f"{url}{link.path}?{link.query}"
+
+
+async def _carry(phone: Any, fraction_to_pose: Any) -> None:
+    """Carry the emulated phone along the path, 30 poses a second."""
+    for step in range(STEPS + 1):
+        x, y, z, qx, qy, qz, qw = fraction_to_pose(0.5 - 0.5 * math.cos(math.pi * step / STEPS))
+        await phone.evaluate(
+            "([x, y, z, qx, qy, qz, qw]) => { emulatedPhone.position.set(x, y, z);"
+            " emulatedPhone.quaternion.set(qx, qy, qz, qw); }",
+            [x, y, z, qx, qy, qz, qw],
+        )
+        await asyncio.sleep(1 / 30)
+
+
+def _xr_pose(fraction: float) -> tuple[float, ...]:
+    """The path in WebXR's frame (y up, -z forward): 10 cm forward, 5 left, 5 up, 20° left."""
+    forward, left, up = PATH_ROBOT_M * fraction
+    half = math.radians(PATH_YAW_DEG) * fraction / 2
+    return (-left, 1.6 + up, -forward, 0.0, math.sin(half), 0.0, math.cos(half))
+
+
+def test_the_phone_in_ar_drives_the_hand_along_its_path_and_lets_go_when_tracking_does(
+    tmp_path, screenshots
+):
+    require_chromium()
+    from playwright.async_api import async_playwright
+
+    with coord_server(tmp_path, capacity=1, campaigns=[CAMPAIGN]) as coord:
+
+        async def visit() -> dict[str, Any]:
+            results: dict[str, Any] = {}
+            http, sid, phone_link = await _worker_with_robot(coord.url)
+            hand: dict[str, np.ndarray] = {}
+            admin = admin_teleop_client(
+                coord.url, sid, on_privileged=lambda s: hand.update(now=np.array(s.end_effector))
+            )
+            await admin.connect()
+            beat = asyncio.create_task(_heartbeat(http, sid))
+            async with (
+                async_playwright() as playwright,
+                browser_context(
+                    playwright, mobile=True, args=("--enable-unsafe-swiftshader",)
+                ) as handset,
+            ):
+                await handset.add_init_script(path=str(IWER))
+                await handset.add_init_script(EMULATED_PHONE)
+                phone = await handset.new_page()
+                cdp = await handset.new_cdp_session(phone)
+                await phone.goto(phone_link)
+                await wait_js(phone, "window.crowdteleop.ready === true", 30)
+                await phone.click("#start-ar")
+                await wait_js(phone, "crowdteleop.tracking === 'tracking'", 20)
+                results["requests"] = await phone.evaluate("xrRequests")
+                results["motion"] = await phone.inner_text("#motion")
+                await phone.screenshot(path=str(screenshots / "phone-ar.png"))
+
+                # The clutch is pressed through the overlay: it engages, and is not also a select.
+                clutch = await centre(phone, "#clutch")
+                await touch(cdp, "touchStart", [clutch])
+                await wait_js(phone, "crowdteleop.engaged === true", 10)
+                await wait_js(
+                    phone, "crowdteleop.connection.state.status.controlling_device === 'phone'", 10
+                )
+                await asyncio.sleep(1.0)
+                before = hand["now"].copy()
+                samples = []
+                sampler = asyncio.create_task(_sample(hand, samples))
+                await _carry(phone, _xr_pose)
+                await asyncio.sleep(2.0)
+                sampler.cancel()
+                after = hand["now"].copy()
+                results["moved"] = after[:3] - before[:3]
+                results["turn"] = _relative(after[3:], before[3:])
+                results["path"] = [s[:3] - before[:3] for s in samples]
+                await touch(cdp, "touchEnd", [])
+                await wait_js(phone, "crowdteleop.engaged === false", 10)
+
+                # A touch in the overlay away from the controls is a select: hold anywhere.
+                pad = await centre(phone, "#pad")
+                await touch(cdp, "touchStart", [pad])
+                results["select_engages"] = await wait_js(phone, "crowdteleop.engaged", 10)
+                await touch(cdp, "touchEnd", [])
+                await wait_js(phone, "crowdteleop.engaged === false", 10)
+
+                # Tracking lost while moving: the clutch lets go and the page says so.
+                await touch(cdp, "touchStart", [clutch])
+                await wait_js(phone, "crowdteleop.engaged === true", 10)
+                await phone.evaluate("trackingLost = true")
+                await wait_js(phone, "crowdteleop.engaged === false", 5)
+                results["lost_banner"] = await phone.inner_text("#banner")
+                await phone.screenshot(path=str(screenshots / "phone-ar-tracking-lost.png"))
+                await touch(cdp, "touchEnd", [])
+                await phone.evaluate("trackingLost = false")
+                await wait_js(phone, "crowdteleop.tracking === 'tracking'", 5)
+                results["back_banner"] = await phone.inner_text("#banner")
+
+                # The session ends (the system's back gesture): the clutch lets go.
+                await touch(cdp, "touchStart", [clutch])
+                await wait_js(phone, "crowdteleop.engaged === true", 10)
+                await phone.evaluate("crowdteleop.xr.session.end()")
+                await wait_js(phone, "crowdteleop.engaged === false", 5)
+                results["ended_banner"] = await phone.inner_text("#banner")
+                results["start_again"] = await phone.is_visible("#start-ar")
+                await touch(cdp, "touchEnd", [])
+                results["stats"] = await phone.evaluate("crowdteleop.connection.stats")
+            beat.cancel()
+            await admin.close()
+            await http.aclose()
+            return results
+
+        results = asyncio.run(visit())
+
+    [request] = results["requests"]
+    assert request["mode"] == "immersive-ar" and "dom-overlay" in request["optional"]
+    assert request["overlayRoot"] == "phone-ui", "the page, banner and controls, is the overlay"
+    assert "6-DoF" in results["motion"]
+    position_error_m = float(np.linalg.norm(results["moved"] - PATH_ROBOT_M))
+    expected_turn = np.array(
+        [0, 0, math.sin(math.radians(PATH_YAW_DEG) / 2), math.cos(math.radians(PATH_YAW_DEG) / 2)]
+    )
+    rotation_error_deg = _quat_angle_deg(results["turn"], expected_turn)
+    direction = PATH_ROBOT_M / np.linalg.norm(PATH_ROBOT_M)
+    off_path_m = max(
+        float(np.linalg.norm(p - np.dot(p, direction) * direction)) for p in results["path"]
+    )
+    print(
+        f"AR path: hand moved {np.round(results['moved'], 4)} m; end error "
+        f"{1000 * position_error_m:.1f} mm, {rotation_error_deg:.2f} deg; "
+        f"largest distance from the path {1000 * off_path_m:.1f} mm"
+    )
+    assert position_error_m < 0.02, results["moved"]
+    assert rotation_error_deg < 5.0, results["turn"]
+    assert off_path_m < 0.02
+    assert results["select_engages"] is True
+    assert "lost track" in results["lost_banner"]
+    assert "Tracking is back" in results["back_banner"]
+    assert "AR tracking ended" in results["ended_banner"] and results["start_again"]
+    assert results["stats"] == {"refusedOutgoing": 0, "ignoredIncoming": 0}, "schema-valid"
+
+
+async def _heartbeat(http: httpx.AsyncClient, sid: str) -> None:
+    while True:
+        await asyncio.sleep(2.0)
+        await http.post(f"/api/sessions/{sid}/heartbeat")
+
+
+async def _sample(hand: dict[str, np.ndarray], samples: list[np.ndarray]) -> None:
+    while True:
+        await asyncio.sleep(0.05)
+        samples.append(hand["now"].copy())
