@@ -170,6 +170,9 @@ def test_the_phone_in_ar_drives_the_hand_along_its_path_and_lets_go_when_trackin
                 cdp = await handset.new_cdp_session(phone)
                 await phone.goto(phone_link)
                 await wait_js(phone, "window.crowdteleop.ready === true", 30)
+                results["why"] = await wait_js(
+                    phone, "document.getElementById('motion-why').textContent", 10
+                )
                 await phone.click("#start-ar")
                 await wait_js(phone, "crowdteleop.tracking === 'tracking'", 20)
                 results["requests"] = await phone.evaluate("xrRequests")
@@ -236,6 +239,7 @@ def test_the_phone_in_ar_drives_the_hand_along_its_path_and_lets_go_when_trackin
     assert request["mode"] == "immersive-ar" and "dom-overlay" in request["optional"]
     assert request["overlayRoot"] == "phone-ui", "the page, banner and controls, is the overlay"
     assert "6-DoF" in results["motion"]
+    assert "track itself in 3D" in results["why"], "the page says why it offers AR"
     position_error_m = float(np.linalg.norm(results["moved"] - PATH_ROBOT_M))
     expected_turn = np.array(
         [0, 0, math.sin(math.radians(PATH_YAW_DEG) / 2), math.cos(math.radians(PATH_YAW_DEG) / 2)]

@@ -156,6 +156,7 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path, screenshots
                 if await phone.is_visible("#motion-permission"):
                     await phone.click("#motion-permission")
                 await wait_js(phone, "window.crowdteleop.source === 'orientation'", 10)
+                results["phone_why"] = await phone.inner_text("#motion-why")
                 before = await _hand(page)
                 clutch = await centre(phone, "#clutch")
                 lift_x, lift_y = await centre(phone, "#lift")
@@ -271,6 +272,7 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path, screenshots
     assert results["keyboard_moved"][2] > 0.05, "holding R raises the hand"
     assert results["picture_change"] > 0.5, "and the picture shows it"
     assert results["driver"] == "phone"
+    assert "the phone turns the hand" in results["phone_why"], "it says why: no AR here"
     assert results["phone_moved"][2] > 0.03, "dragging the lift pad up raises the hand"
     assert results["queue_position"] == 1
     assert "worker" in results["admin_sessions"] and "ready" in results["admin_sessions"]

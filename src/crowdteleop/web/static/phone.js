@@ -101,6 +101,14 @@ async function enableOrientation() {
   }
 }
 
+// Why this phone got the mode it got, in a line (docs/phone.md has the table).
+async function modeReason() {
+  if (!phone.secure) return "The page is not on https, so the browser keeps the motion sensors off.";
+  if (await arSupported()) return "This phone can track itself in 3D: tap \"Track phone in 3D\" for full 6-DoF.";
+  if (!navigator.xr) return "This browser has no WebXR (as on iPhones): the phone turns the hand, the pads move it.";
+  return "This phone has no AR tracking (on Android: install Google Play Services for AR): the phone turns the hand, the pads move it.";
+}
+
 async function enableXR() {
   if (!(await arSupported())) return;
   $("start-ar").hidden = false;
@@ -306,6 +314,7 @@ async function pair(code, key) {
   wireControls();
   await enableOrientation();
   await enableXR();
+  $("motion-why").textContent = await modeReason();
   phone.ready = true;
 }
 
