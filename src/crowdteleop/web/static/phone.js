@@ -31,7 +31,6 @@ class PhoneState {
     this.tracking = "none";  // AR tracking: "none", "starting", "tracking" or "lost"
     this.filter = null;  // the PhonePoseFilter of the AR session
     this.rawPose = null;  // the last tracked pose before filtering (robot-style frame)
-    this.limited = false;  // the stroke reached its workspace limit
     this.stallShown = false;
     this.ready = false;
     this.secure = window.isSecureContext;  // sensors and WebXR need https (or localhost)
@@ -141,7 +140,6 @@ async function startXR() {
       }
       phone.position = out.position;
       phone.quaternion = out.quaternion;
-      phone.limited = out.limited;
     },
     trackingLost: () => {
       phone.tracking = "lost";
