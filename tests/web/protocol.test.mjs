@@ -23,6 +23,7 @@ function built() {
     reset: f.reset(),
     start: f.start(),
     stop: f.stop(),
+    skipPractice: f.skipPractice(),
     request: f.request("reset"),
     takeControl: f.takeControl(),
     ping: f.ping(7),
@@ -174,6 +175,12 @@ describe("server messages", () => {
     for (const [name, message] of Object.entries(samples)) {
       assert.deepEqual(protocol.decode(JSON.stringify(message)), message, name);
     }
+  });
+  test("decode accepts a status in a practice round", () => {
+    const status = { ...samples.status, episode: 0, state: "ready", practice: "running", practice_left_s: 14.2,
+                     practice_reached: false };
+    assert.deepEqual(protocol.decode(JSON.stringify(status)), status);
+    assert.throws(() => protocol.decode(JSON.stringify({ ...status, practice: "rehearsal" })), ProtocolViolation);
   });
   test("decode refuses what is not a server message", () => {
     const bad = [

@@ -64,7 +64,12 @@ class Bot:
     """Sends one command per server step, in step with the privileged stream.
 
     Commands go through `client`; the object poses come from `observer`'s admin channel, which
-    is `client` itself unless a bot drives as a worker (or phone) and watches as an admin."""
+    is `client` itself unless a bot drives as a worker (or phone) and watches as an admin.
+
+    A practice round (`crowdteleop.teleop.practice`) the bot skips, as a worker may: a scripted
+    operator has nothing to learn, one message costs nothing, and the crowd's episode times
+    then measure the task, not the round. Skipping rather than asking servers to turn the
+    round off keeps bots on the very path a worker's page takes."""
 
     def __init__(
         self,
@@ -85,6 +90,7 @@ class Bot:
         # (position, quaternion, engaged, gripper) as last sent by `TeleopClient.send_pose`
         self._last_pose: tuple[Iterable[float], Iterable[float], bool, bool] | None = None
         self._await_seq: int | None = None  # a pose the server must apply before we go on
+        self._skipped_practice = False
         (observer or client).on_privileged = self._on_privileged
 
     def _on_privileged(self, message: PrivilegedState) -> None:
@@ -106,6 +112,8 @@ class Bot:
             and len(self.client.state.episodes) >= self.episodes_wanted
         ):
             return  # done: leave the arm alone
+        if self._practising():
+            return  # the scene resets when the round ends: the operator starts then
         if message.scene != self._scene:  # the server reset the scene: start over
             self._scene = message.scene
             self.operator.reset()
@@ -139,6 +147,16 @@ class Bot:
         self._await_seq = seq if engaging else None
         if self.operator.finished:
             self.client.request("reset")
+
+    def _practising(self) -> bool:
+        """Whether a practice round runs (skipped once: the events channel is reliable)."""
+        status = self.client.state.status
+        if status is None or status.practice != "running":
+            return False
+        if not self._skipped_practice:
+            self._skipped_practice = True
+            self.client.request("skip_practice")
+        return True
 
     async def stream(self, hz: float) -> None:
         """Also resend the latest pose `hz` times a second, unsynchronized with the server's

@@ -294,7 +294,7 @@ class TeleopClient:
         return seq
 
     def request(self, kind: str) -> None:
-        """``reset``, ``start`` or ``stop``."""
+        """``reset``, ``start``, ``stop`` or ``skip_practice``."""
         self.send_raw("events", {"type": kind})
 
     def take_control(self) -> None:

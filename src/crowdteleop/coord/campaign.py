@@ -38,6 +38,13 @@ class CampaignConfig(BaseModel):
         default_factory=lambda: list(WORKER_DEVICES), min_length=1
     )
     demos_required: int = Field(3, ge=1, le=1000)
+    practice_s: float = Field(
+        20.0,
+        ge=0,
+        le=600,
+        description="a practice round before each worker's first demonstration: reach a green "
+        "ball, nothing recorded, skippable (teleop/practice.py); 0: none",
+    )
     time_limit_s: float = Field(1800.0, gt=0, le=24 * 3600, description="per session")
     capacity: int | None = Field(
         None, ge=1, description="unused here: the server-wide capacity applies (CoordConfig)"

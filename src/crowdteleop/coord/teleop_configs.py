@@ -39,6 +39,7 @@ def assignment_of(config: TeleopConfig) -> Assignment:
         report_url=config.report_url,
         report_token=config.report_token,
         ice_servers=list(config.ice_servers),
+        practice_s=config.practice_s,
     )
 
 
@@ -75,9 +76,15 @@ class TeleopConfigs:
                 "allowed_origins": [self.config.public_url],
                 "report_url": f"{self.config.report_base_url}/internal/episodes",
                 "report_token": report_token,
+                "practice_s": self._practice_s(session.campaign),
             },
         )
         return TeleopConfig.model_validate(fields)
+
+    def _practice_s(self, campaign: str) -> float:
+        """The session's campaign's practice round (a campaign since removed: none)."""
+        found = self.config.campaign(campaign)
+        return found.practice_s if found is not None else 0.0
 
     def spare_keys(self) -> list[SpareKey]:
         """The (task, robot, controller) combinations the campaigns hand out, round-robin."""

@@ -7,6 +7,7 @@ them.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -17,6 +18,7 @@ from crowdteleop.sim.types import (
     ActionSpec,
     ContactEvent,
     KinematicModel,
+    Marker,
     Pose,
     RobotState,
     StepResult,
@@ -42,8 +44,11 @@ class Simulation(Protocol):
         """Apply `action` (see `action_spec`) for one control period."""
         ...
 
-    def render(self, camera: str, width: int, height: int) -> npt.NDArray[np.uint8]:
-        """An RGB frame, uint8 (height, width, 3), top row first."""
+    def render(
+        self, camera: str, width: int, height: int, markers: Sequence[Marker] = ()
+    ) -> npt.NDArray[np.uint8]:
+        """An RGB frame, uint8 (height, width, 3), top row first; ``markers`` are drawn in
+        (visual hints, e.g. a practice round's target: nothing physical)."""
         ...
 
     def get_state(self) -> npt.NDArray[np.float64]:

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import mujoco
 import numpy as np
 import numpy.typing as npt
 
 from crowdteleop.errors import InvalidResolutionError, UnknownCameraError
 from crowdteleop.gl import render_backend_error
+from crowdteleop.sim.types import Marker
 
 MIN_SIDE = 16
 MAX_WIDTH = 1920
@@ -23,6 +26,24 @@ def validate_resolution(width: int, height: int) -> None:
             raise InvalidResolutionError(
                 f"{name} must be between {MIN_SIDE} and {limit} pixels, got {value}"
             )
+
+
+def add_markers(scene: mujoco.MjvScene, markers: Sequence[Marker]) -> None:
+    """Append `markers` to a scene already updated from the model: drawn like geoms, but
+    nothing in the model or its data knows of them. Markers beyond the scene's room are left
+    out (a picture without its hint beats no picture)."""
+    for marker in markers:
+        if scene.ngeom >= scene.maxgeom:
+            return
+        mujoco.mjv_initGeom(
+            scene.geoms[scene.ngeom],
+            mujoco.mjtGeom.mjGEOM_SPHERE,
+            np.full(3, marker.radius_m),
+            np.asarray(marker.position_m, dtype=np.float64),
+            np.eye(3).ravel(),
+            np.asarray(marker.rgba, dtype=np.float32),
+        )
+        scene.ngeom += 1
 
 
 class CameraRenderer:
@@ -41,7 +62,12 @@ class CameraRenderer:
         model.vis.global_.offheight = max(model.vis.global_.offheight, MAX_HEIGHT)
 
     def render(
-        self, data: mujoco.MjData, camera: str, width: int, height: int
+        self,
+        data: mujoco.MjData,
+        camera: str,
+        width: int,
+        height: int,
+        markers: Sequence[Marker] = (),
     ) -> npt.NDArray[np.uint8]:
         if camera not in self.cameras:
             raise UnknownCameraError(
@@ -50,6 +76,7 @@ class CameraRenderer:
         validate_resolution(width, height)
         renderer = self._renderer(width, height)
         renderer.update_scene(data, camera=camera, scene_option=self._option)
+        add_markers(renderer.scene, markers)
         image: npt.NDArray[np.uint8] = renderer.render()
         return image
 

@@ -39,6 +39,16 @@ class Pose:
 
 
 @dataclass(frozen=True)
+class Marker:
+    """A sphere drawn into rendered frames only: no body, no collision, not in the state, so
+    showing one changes neither the physics nor what an episode records."""
+
+    position_m: tuple[float, float, float]  # world frame
+    radius_m: float
+    rgba: tuple[float, float, float, float]  # alpha < 1 is see-through
+
+
+@dataclass(frozen=True)
 class ContactEvent:
     """A robot part touching an object, for haptic feedback. Intensity is normalized to [0, 1]."""
 

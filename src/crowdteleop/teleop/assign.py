@@ -13,7 +13,8 @@ from crowdteleop.teleop.messages import Assignment
 
 
 def assigned_config(config: TeleopConfig, assignment: Assignment) -> TeleopConfig:
-    """`config` with the session's identity: everything else (the simulation) stays."""
+    """`config` with the session's identity and its campaign's practice round: everything else
+    (the simulation) stays."""
     recording = config.recording.model_copy(update={"directory": assignment.recording_directory})
     return TeleopConfig.model_validate(
         {
@@ -26,6 +27,7 @@ def assigned_config(config: TeleopConfig, assignment: Assignment) -> TeleopConfi
             "report_url": assignment.report_url,
             "report_token": assignment.report_token,
             "ice_servers": [s.model_dump() for s in assignment.ice_servers],
+            "practice_s": assignment.practice_s,  # the campaign's, not the spare's
             "standby": False,
         }
     )

@@ -136,6 +136,9 @@ def status_of(session: TeleopSession, result: TickResult) -> TaskStatus:
         controlling_device=driver.device if driver else None,
         successes=tracker.successes,
         video_stalled=session.board.video_stalled,
+        practice=session.practice.stage,
+        practice_left_s=round(session.practice.left_s, 1),
+        practice_reached=session.practice.reached,
         end_effector=(
             float(result.end_effector[0]),
             float(result.end_effector[1]),

@@ -163,6 +163,14 @@ class TeleopConfig(BaseModel):
     )
     time_limit_s: float | None = Field(None, gt=0, description="default: the task's limit")
     success_hold_steps: int = Field(10, ge=1, description="as robosuite's demo collector")
+    practice_s: float = Field(
+        0.0,
+        ge=0,
+        le=600,
+        description="a practice round (reach a green ball, nothing recorded) of this many "
+        "seconds before the worker's first episode; 0: none. The coordinator sets its "
+        "campaign's (20 s by default); off here so scripts and benchmarks record at once",
+    )
     telemetry_interval_s: float = Field(1.0, gt=0)
     seed: int = 0
 

@@ -19,6 +19,7 @@ from crowdteleop.teleop.protocol import (
     PoseCommand,
     ProtocolError,
     ResetRequest,
+    SkipPractice,
     StartRequest,
     StopRequest,
     TakeControl,
@@ -88,6 +89,8 @@ class Dispatcher:
             self.session.request_start()
         elif isinstance(message, StopRequest):
             self.session.request_stop()
+        elif isinstance(message, SkipPractice):
+            self.session.request_skip_practice()
         elif isinstance(message, Ping):
             peer.send(PingReply(id=message.id, client_time_ms=message.client_time_ms))
         elif isinstance(message, Pong):

@@ -90,6 +90,9 @@ class Assignment(BaseModel):
     ice_servers: list[IceServer] = Field(
         default_factory=list, description="the session's (fresh TURN credentials among them)"
     )
+    practice_s: float = Field(
+        0.0, ge=0, le=600, description="the campaign's practice round for this worker; 0: none"
+    )
 
 
 class EpisodeReport(BaseModel):

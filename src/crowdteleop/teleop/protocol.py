@@ -19,6 +19,7 @@ PROTOCOL_VERSION: Final = 1
 
 PeerRole = Literal["worker", "phone", "admin"]
 Channel = Literal["control", "events", "admin"]
+PracticeStage = Literal["off", "running", "done"]  # teleop/practice.py
 
 # Workspace bound for device positions: a phone moves within arm's reach of its start.
 MAX_POSITION_M = 10.0
@@ -112,6 +113,12 @@ class StopRequest(_Inbound):
     type: Literal["stop"] = "stop"
 
 
+class SkipPractice(_Inbound):
+    """End the practice round now (the worker pressed "Skip practice"); nothing if none runs."""
+
+    type: Literal["skip_practice"] = "skip_practice"
+
+
 class TakeControl(_Inbound):
     """Make this peer's device the one that drives the arm (the switch is explicit)."""
 
@@ -159,6 +166,7 @@ EventMessage = Annotated[
     | ResetRequest
     | StartRequest
     | StopRequest
+    | SkipPractice
     | TakeControl
     | Ping
     | Pong
@@ -216,6 +224,14 @@ class TaskStatus(_Message):
     successes: int
     end_effector: tuple[float, float, float]
     video_stalled: bool = Field(False, description="the worker's video stopped: clutch released")
+    practice: PracticeStage = Field(
+        "off",
+        description="the practice round before episode 1 (nothing recorded): off, running, done",
+    )
+    practice_left_s: float = Field(
+        0.0, ge=0, description="seconds left in it; they count from the first engaged command"
+    )
+    practice_reached: bool = Field(False, description="it ended with the hand at the target")
 
 
 class FrameTag(_Message):

@@ -36,6 +36,7 @@ from crowdteleop.teleop.episode import (
     step_record,
     store_episode,
 )
+from crowdteleop.teleop.practice import PracticeRound
 from crowdteleop.teleop.video import YuvConverter
 from crowdteleop.vocab import Outcome
 
@@ -63,13 +64,18 @@ class StartSession:
 
 
 @dataclass(frozen=True)
+class SkipPractice:
+    """End the practice round (if one runs); the scene resets for episode 1."""
+
+
+@dataclass(frozen=True)
 class EndEpisode:
     """End the running episode with `outcome` (its driver left); the scene resets."""
 
     outcome: Outcome
 
 
-SessionRequest = ResetScene | StopSession | StartSession | EndEpisode
+SessionRequest = ResetScene | StopSession | StartSession | SkipPractice | EndEpisode
 """What peers may ask of the session between two steps (the tracker never changes in one)."""
 
 
@@ -129,6 +135,7 @@ class TeleopSession:
         self.recording_failure: str | None = None
         self.teleop: Teleoperator  # set in _build (sim thread)
         self.tracker: EpisodeTracker
+        self.practice: PracticeRound  # the worker's practice round (`teleop/practice.py`)
 
     @classmethod
     async def create(cls, config: TeleopConfig) -> TeleopSession:
@@ -161,6 +168,7 @@ class TeleopSession:
             metadata=metadata,
             flush_interval_s=self.config.recording.flush_interval_s,
         )
+        self.practice = PracticeRound.for_worker(self.config.practice_s, sim.control_dt)
 
     def assign(self, config: TeleopConfig) -> None:
         """Take a session's identity (a warm spare being handed to a worker): recordings from
@@ -172,6 +180,8 @@ class TeleopSession:
             update={"session_id": config.session_id, "worker_id": config.worker_id}
         )
         self.tracker.recordings = config.recording.directory / "incoming"
+        # A new worker practises (a spare is assigned once and nobody drove it before).
+        self.practice = PracticeRound.for_worker(config.practice_s, self.tracker.control_dt)
 
     @property
     def control_hz(self) -> float:
@@ -188,6 +198,9 @@ class TeleopSession:
 
     def request_start(self) -> None:
         self._pending.append(StartSession())
+
+    def request_skip_practice(self) -> None:
+        self._pending.append(SkipPractice())
 
     def request_end(self, outcome: Outcome) -> None:
         """End the running episode (the controlling device left); the scene resets."""
@@ -216,6 +229,8 @@ class TeleopSession:
                     if self.tracker.state != "stopped":
                         self._end("reset")
                         needs_reset = True
+                case SkipPractice():
+                    needs_reset = self.practice.skip() or needs_reset
                 case EndEpisode(outcome):
                     if self.tracker.state == "running":
                         self._end(outcome)
@@ -238,11 +253,12 @@ class TeleopSession:
         raw = self.board.raw_command()
         driver = self.board.driver
         try:
-            self.tracker.maybe_start(
-                command.engaged,
-                driver.device if driver else None,
-                self.teleop.sim.controller_state().tolist(),  # the sim thread is idle now
-            )
+            if not self.practice.running:  # a practice round records nothing
+                self.tracker.maybe_start(
+                    command.engaged,
+                    driver.device if driver else None,
+                    self.teleop.sim.controller_state().tolist(),  # the sim thread is idle now
+                )
         except (RecordingError, OSError) as error:  # the episode's log cannot be created
             self._recording_failed(error)
             return None
@@ -278,13 +294,16 @@ class TeleopSession:
             if outcome is not None:
                 self._end(outcome)
                 self._reset_scene()
+        hand = sim.robot_state().end_effector  # read once: status and privileged state share it
+        if self.practice.advance(command.engaged, hand.position):  # it ended: a fresh scene
+            self._reset_scene()
+            hand = sim.robot_state().end_effector
         video = self.config.video
-        image = sim.render(video.camera, video.width, video.height)
+        image = sim.render(video.camera, video.width, video.height, self.practice.markers())
         changed = self._last_image is None or image is not self._last_image
         if changed and self._last_image is not None and image.shape == self._last_image.shape:
             changed = not np.array_equal(image, self._last_image)
         self._last_image = image
-        hand = sim.robot_state().end_effector  # read once: status and privileged state share it
         privileged = {**_privileged(sim, hand), "scene": self._seed} if want_privileged else None
         return TickResult(
             image=image,
@@ -306,6 +325,7 @@ class TeleopSession:
         self.teleop.reset(self._seed)
         self.tracker.metadata = self.tracker.metadata.model_copy(update={"reset_seed": self._seed})
         self.board.release_clutch()
+        self.practice.scene_reset()
 
     async def store(self, finished: FinishedEpisode, telemetry: dict[str, Any]) -> str | None:
         """Finalize and store an episode's recording in a worker thread."""

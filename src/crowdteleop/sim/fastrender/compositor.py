@@ -13,6 +13,7 @@ Everything here runs with the shared GL context current (see `glcontext.py`).
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -30,6 +31,8 @@ from crowdteleop.sim.fastrender.layers import (
 from crowdteleop.sim.fastrender.msaa import draw_multisampled
 from crowdteleop.sim.fastrender.render_model import RenderModel
 from crowdteleop.sim.fastrender.textures import TextureResidency, textures_used
+from crowdteleop.sim.rendering import add_markers
+from crowdteleop.sim.types import Marker
 
 # The offscreen buffer starts at a common stream size and grows to the largest frame asked for.
 # Every pass clears all of it, so a buffer bigger than the frame costs: 640x480 for 320x240
@@ -114,12 +117,19 @@ class Compositor:
         self._backgrounds.clear()
         self._see_through_memo = None
 
-    def frame(self, camera: int, width: int, height: int) -> npt.NDArray[np.uint8]:
-        """The picture from ``camera`` for the render model's current pose, rows top-down."""
+    def frame(
+        self, camera: int, width: int, height: int, markers: Sequence[Marker] = ()
+    ) -> npt.NDArray[np.uint8]:
+        """The picture from ``camera`` for the render model's current pose, rows top-down.
+
+        Frames with ``markers`` are drawn in one pass: a see-through marker blends over what
+        is behind it, which the depth merge cannot do (see `_see_through_part_visible`).
+        They are rare (a practice round's target), so the few milliseconds more are fine.
+        """
         self._fit_buffer(width, height)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
-        if not (self._layers.composite_ok and self._static_camera[camera]):
-            return self._single_pass(camera, width, height)
+        if markers or not (self._layers.composite_ok and self._static_camera[camera]):
+            return self._single_pass(camera, width, height, markers)
         background = self._background(camera, width, height)
         if self._see_through_part_visible(background, camera, width, height):
             return self._single_pass(camera, width, height)
@@ -149,6 +159,7 @@ class Compositor:
         option: mujoco.MjvOption,
         skybox: bool,
         reflection: bool = False,
+        markers: Sequence[Marker] = (),
     ) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.float32]]:
         """Render one pass; colour and depth as OpenGL returns them (bottom row first)."""
         self._camera.fixedcamid = camera
@@ -156,6 +167,7 @@ class Compositor:
         mujoco.mjv_updateScene(
             model, data, option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
         )
+        add_markers(self._scene, markers)
         self._scene.flags[_SKYBOX] = skybox
         self._scene.flags[_REFLECTION] = reflection
         viewport = mujoco.MjrRect(0, 0, width, height)
@@ -165,7 +177,9 @@ class Compositor:
         mujoco.mjr_readPixels(rgb, depth, viewport, self._context)
         return rgb, depth
 
-    def _single_pass(self, camera: int, width: int, height: int) -> npt.NDArray[np.uint8]:
+    def _single_pass(
+        self, camera: int, width: int, height: int, markers: Sequence[Marker] = ()
+    ) -> npt.NDArray[np.uint8]:
         """Everything in one pass: the original picture less MSAA (and meshes simplified).
 
         Reflections stay on: without them the floor and the table's metal differ visibly
@@ -176,7 +190,9 @@ class Compositor:
         self.single_pass_frames += 1
         self._composited_in_a_row = 0
         self._textures.restore(self._context)
-        rgb, _ = self._draw(camera, width, height, self._full_option, skybox=True, reflection=True)
+        rgb, _ = self._draw(
+            camera, width, height, self._full_option, skybox=True, reflection=True, markers=markers
+        )
         return np.ascontiguousarray(rgb[::-1])
 
     def _background(self, camera: int, width: int, height: int) -> Background:

@@ -20,6 +20,7 @@ import ctypes.util
 import platform
 import threading
 from collections import OrderedDict
+from collections.abc import Sequence
 
 import mujoco
 import numpy as np
@@ -33,6 +34,7 @@ from crowdteleop.sim.fastrender.layers import SHOWN_BY_DEFAULT
 from crowdteleop.sim.fastrender.render_model import RenderModel
 from crowdteleop.sim.fastrender.simplify import SimplifiedMesh, SimplifyParams
 from crowdteleop.sim.rendering import validate_resolution
+from crowdteleop.sim.types import Marker
 
 MAX_CACHED_FRAMES = 8  # one per (camera, width, height) in use; a stream uses one or two
 
@@ -80,9 +82,15 @@ class FastSceneRenderer:
 
     # --- public ----------------------------------------------------------------------------
     def render(
-        self, physics_data: mujoco.MjData, camera: str, width: int, height: int
+        self,
+        physics_data: mujoco.MjData,
+        camera: str,
+        width: int,
+        height: int,
+        markers: Sequence[Marker] = (),
     ) -> npt.NDArray[np.uint8]:
-        """The frame from ``camera`` for the state in ``physics_data`` (read, never written)."""
+        """The frame from ``camera`` for the state in ``physics_data`` (read, never written),
+        with ``markers`` drawn in (see `Compositor.frame`)."""
         if camera not in self._camera_ids:
             raise UnknownCameraError(
                 f"unknown camera {camera!r}; this scene has: {', '.join(self.cameras)}"
@@ -95,14 +103,14 @@ class FastSceneRenderer:
             if self._render.sync_appearance(self._physics_model):
                 self._compositor.set_layers(self._render.layers(self._hidden))
                 self._frames.clear()
-            pose = _pose_fingerprint(physics_data)
+            pose = np.concatenate([_pose_fingerprint(physics_data), _marker_fingerprint(markers)])
             cached = self._frames.get(key)
             if cached is not None and np.array_equal(cached[0], pose):
                 self._frames.move_to_end(key)
                 return cached[1].copy()
             self._render.sync(physics_data)
             with self._gl.current():
-                frame = self._compositor.frame(*key)
+                frame = self._compositor.frame(*key, markers=markers)
             if self._compositor.textures_parked:  # tens of MiB just freed: give them back
                 self._compositor.textures_parked = False
                 _return_freed_heap()
@@ -164,3 +172,11 @@ def _pose_fingerprint(data: mujoco.MjData) -> npt.NDArray[np.float64]:
     Body, camera and light poses all follow from qpos and the mocap poses via kinematics.
     """
     return np.concatenate([data.qpos, data.mocap_pos.ravel(), data.mocap_quat.ravel()])
+
+
+def _marker_fingerprint(markers: Sequence[Marker]) -> npt.NDArray[np.float64]:
+    """What a picture depends on of its markers: a frame cached without them is not theirs."""
+    return np.array(
+        [len(markers), *(v for m in markers for v in (*m.position_m, m.radius_m, *m.rgba))],
+        dtype=np.float64,
+    )

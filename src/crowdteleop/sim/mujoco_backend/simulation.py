@@ -7,6 +7,8 @@ directly onto the scene's joint-velocity servos, so no controller code is needed
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import mujoco
 import numpy as np
 import numpy.typing as npt
@@ -24,6 +26,7 @@ from crowdteleop.sim.types import (
     ActionSpec,
     ContactEvent,
     KinematicModel,
+    Marker,
     Pose,
     RobotState,
     StepResult,
@@ -201,8 +204,10 @@ class MujocoSimulation:
         }
 
     # --- observation -----------------------------------------------------------------------
-    def render(self, camera: str, width: int, height: int) -> npt.NDArray[np.uint8]:
-        return self._renderer.render(self._data, camera, width, height)
+    def render(
+        self, camera: str, width: int, height: int, markers: Sequence[Marker] = ()
+    ) -> npt.NDArray[np.uint8]:
+        return self._renderer.render(self._data, camera, width, height, markers)
 
     def contacts(self) -> list[ContactEvent]:
         return self._contacts.read(self._data)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Sequence
 from typing import Any
 
 os.environ.setdefault("PYNPUT_BACKEND", "dummy")  # robosuite.devices wants an X display
@@ -27,6 +28,7 @@ from crowdteleop.sim.types import (
     ActionSpec,
     ContactEvent,
     KinematicModel,
+    Marker,
     Pose,
     RobotState,
     StepResult,
@@ -155,8 +157,10 @@ class RobosuiteSimulation:
         return low_dim_keys(raw, self._robot.robot_model.naming_prefix)
 
     # --- observation -----------------------------------------------------------------------
-    def render(self, camera: str, width: int, height: int) -> npt.NDArray[np.uint8]:
-        return self._renderer.render(self._data, camera, width, height)
+    def render(
+        self, camera: str, width: int, height: int, markers: Sequence[Marker] = ()
+    ) -> npt.NDArray[np.uint8]:
+        return self._renderer.render(self._data, camera, width, height, markers)
 
     def contacts(self) -> list[ContactEvent]:
         return self._contacts.read(self._data)

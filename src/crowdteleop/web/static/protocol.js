@@ -10,7 +10,8 @@ export const PROTOCOL_VERSION = 1;
 
 export const CLIENT_MESSAGES = {
   control: ["pose"],
-  events: ["clutch", "gripper", "reset", "start", "stop", "take_control", "ping", "pong", "latency", "video"],
+  events: ["clutch", "gripper", "reset", "start", "stop", "skip_practice", "take_control", "ping", "pong",
+           "latency", "video"],
 };
 
 // LatencyReport's bounds in protocol.py: the factory keeps reports inside them.
@@ -114,10 +115,11 @@ export class MessageFactory {
   }
   clutch(engaged) { return { ...this.#stamped("clutch"), engaged: Boolean(engaged) }; }
   gripper(closed) { return { ...this.#stamped("gripper"), closed: Boolean(closed) }; }
-  request(type) { return { v: PROTOCOL_VERSION, type }; }  // "reset", "start" or "stop"
+  request(type) { return { v: PROTOCOL_VERSION, type }; }  // "reset", "start", "stop", "skip_practice"
   reset() { return this.request("reset"); }
   start() { return this.request("start"); }
   stop() { return this.request("stop"); }
+  skipPractice() { return this.request("skip_practice"); }
   takeControl() { return { v: PROTOCOL_VERSION, type: "take_control", device: this.device }; }
   ping(id) { return { v: PROTOCOL_VERSION, type: "ping", id, client_time_ms: this.clockMs() }; }
   // The answer to the server's ping echoes its id and clock, stamped with ours: the server

@@ -2,6 +2,7 @@
 
 import { call, worker } from "./api.js";
 import { GamepadDevice, KEY_LEGEND, KeyboardDevice, SpaceMouseDevice, VRControllerDevice } from "./devices.js";
+import { watchPractice } from "./practice.js";
 import { Protocol } from "./protocol.js";
 import { TeleopConnection } from "./rtc.js";
 
@@ -320,6 +321,7 @@ async function connectRobot() {
   connection.addEventListener("track", ({ detail }) => { $("video").srcObject = detail.stream; });
   connection.watchVideo($("video"));
   showStatus();
+  watchPractice(connection, $("practice"), $("practice-text"), $("skip-practice"));
   try {
     await connection.connect(20000, page.timeline);
   } catch (error) {
