@@ -32,9 +32,10 @@ format: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/sim.py
 
-## Refresh the README's pictures (docs/screenshots/) with the browser end-to-end test.
+## Refresh the README's pictures (docs/screenshots/) with the browser end-to-end tests.
 screenshots: $(STAMP)
-	CROWDTELEOP_SCREENSHOTS=docs/screenshots $(PY) -m pytest -q tests/e2e/test_web_e2e.py tests/e2e/test_phone_xr.py
+	CROWDTELEOP_SCREENSHOTS=docs/screenshots $(PY) -m pytest -q tests/e2e/test_web_e2e.py tests/e2e/test_phone_xr.py \
+		tests/e2e/test_phone_camera.py
 
 system-deps:
 	bash scripts/system-deps.sh test

@@ -11,17 +11,20 @@ from __future__ import annotations
 
 import asyncio
 import math
-import time
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit
 
-import httpx
 import numpy as np
 import pytest
 
 from tests.fixtures.browser import browser_context, centre, require_chromium, touch, wait_js
-from tests.fixtures.coord import admin_teleop_client, auth, coord_server
+from tests.fixtures.coord import coord_server
+from tests.fixtures.phone_page import (
+    quat_angle_deg,
+    relative_turn,
+    robot_for_a_phone,
+    sample_hand,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -84,44 +87,6 @@ PATH_ROBOT_M = np.array([0.10, 0.05, 0.05])  # forward, left, up: the hand shoul
 PATH_YAW_DEG = 20.0
 
 
-def _quat_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    return math.degrees(2 * math.acos(min(1.0, abs(float(np.dot(a, b))))))
-
-
-def _relative(after: np.ndarray, before: np.ndarray) -> np.ndarray:
-    """after * before^-1 (x, y, z, w)."""
-    x1, y1, z1, w1 = after
-    x2, y2, z2, w2 = -before[0], -before[1], -before[2], before[3]
-    return np.array(
-        [
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-        ]
-    )
-
-
-async def _worker_with_robot(url: str) -> tuple[httpx.AsyncClient, str, str]:
-    """A worker who joined and got a robot; the phone link its page's QR code holds."""
-    http = httpx.AsyncClient(base_url=url, timeout=30)
-    joined = (
-        await http.post(
-            "/api/join", json={"params": {"PROLIFIC_PID": "xr-worker"}, "campaign": "xr"}
-        )
-    ).json()
-    http.headers.update(auth(joined["worker_token"]))
-    sid = (await http.post("/api/sessions")).json()["session_id"]
-    deadline = time.monotonic() + 150
-    while (await http.get(f"/api/sessions/{sid}")).json()["state"] != "ready":
-        assert time.monotonic() < deadline, "the robot never became ready"
-        await http.post(f"/api/sessions/{sid}/heartbeat")
-        await asyncio.sleep(0.5)
-    pairing = (await http.post(f"/api/sessions/{sid}/pairing")).json()
-    link = urlsplit(pairing["phone_url"])
-    return http, sid, f"{url}{link.path}?{link.query}"
-
-
 async def _carry(phone: Any, fraction_to_pose: Any) -> None:
     """Carry the emulated phone along the path, 30 poses a second."""
     for step in range(STEPS + 1):
@@ -151,14 +116,8 @@ def test_the_phone_in_ar_drives_the_hand_along_its_path_and_lets_go_when_trackin
 
         async def visit() -> dict[str, Any]:
             results: dict[str, Any] = {}
-            http, sid, phone_link = await _worker_with_robot(coord.url)
-            hand: dict[str, np.ndarray] = {}
-            admin = admin_teleop_client(
-                coord.url, sid, on_privileged=lambda s: hand.update(now=np.array(s.end_effector))
-            )
-            await admin.connect()
-            beat = asyncio.create_task(_heartbeat(http, sid))
             async with (
+                robot_for_a_phone(coord.url, "xr") as (phone_link, hand),
                 async_playwright() as playwright,
                 browser_context(
                     playwright, mobile=True, args=("--enable-unsafe-swiftshader",)
@@ -189,13 +148,13 @@ def test_the_phone_in_ar_drives_the_hand_along_its_path_and_lets_go_when_trackin
                 await asyncio.sleep(1.0)
                 before = hand["now"].copy()
                 samples = []
-                sampler = asyncio.create_task(_sample(hand, samples))
+                sampler = asyncio.create_task(sample_hand(hand, samples))
                 await _carry(phone, _xr_pose)
                 await asyncio.sleep(2.0)
                 sampler.cancel()
                 after = hand["now"].copy()
                 results["moved"] = after[:3] - before[:3]
-                results["turn"] = _relative(after[3:], before[3:])
+                results["turn"] = relative_turn(after[3:], before[3:])
                 results["path"] = [s[:3] - before[:3] for s in samples]
                 await touch(cdp, "touchEnd", [])
                 await wait_js(phone, "crowdteleop.engaged === false", 10)
@@ -228,9 +187,6 @@ def test_the_phone_in_ar_drives_the_hand_along_its_path_and_lets_go_when_trackin
                 results["start_again"] = await phone.is_visible("#start-ar")
                 await touch(cdp, "touchEnd", [])
                 results["stats"] = await phone.evaluate("crowdteleop.connection.stats")
-            beat.cancel()
-            await admin.close()
-            await http.aclose()
             return results
 
         results = asyncio.run(visit())
@@ -244,7 +200,7 @@ def test_the_phone_in_ar_drives_the_hand_along_its_path_and_lets_go_when_trackin
     expected_turn = np.array(
         [0, 0, math.sin(math.radians(PATH_YAW_DEG) / 2), math.cos(math.radians(PATH_YAW_DEG) / 2)]
     )
-    rotation_error_deg = _quat_angle_deg(results["turn"], expected_turn)
+    rotation_error_deg = quat_angle_deg(results["turn"], expected_turn)
     direction = PATH_ROBOT_M / np.linalg.norm(PATH_ROBOT_M)
     off_path_m = max(
         float(np.linalg.norm(p - np.dot(p, direction) * direction)) for p in results["path"]
@@ -262,15 +218,3 @@ def test_the_phone_in_ar_drives_the_hand_along_its_path_and_lets_go_when_trackin
     assert "Tracking is back" in results["back_banner"]
     assert "AR tracking ended" in results["ended_banner"] and results["start_again"]
     assert results["stats"] == {"refusedOutgoing": 0, "ignoredIncoming": 0}, "schema-valid"
-
-
-async def _heartbeat(http: httpx.AsyncClient, sid: str) -> None:
-    while True:
-        await asyncio.sleep(2.0)
-        await http.post(f"/api/sessions/{sid}/heartbeat")
-
-
-async def _sample(hand: dict[str, np.ndarray], samples: list[np.ndarray]) -> None:
-    while True:
-        await asyncio.sleep(0.05)
-        samples.append(hand["now"].copy())

@@ -4,8 +4,9 @@
 import assert from "node:assert/strict";
 import { describe, test } from "node:test";
 
+import { quatMultiply } from "../../src/crowdteleop/web/static/devices.js";
 import {
-  OneEuroFilter, PHONE_FILTER, PhonePoseFilter, RotationFilter, angleBetween, headingOf,
+  OneEuroFilter, OrientationFusion, PHONE_FILTER, PhonePoseFilter, RotationFilter, angleBetween, headingOf,
   rotateVector, yawQuaternion,
 } from "../../src/crowdteleop/web/static/pose_filter.js";
 
@@ -106,4 +107,33 @@ test("headingOf reads back yawQuaternion and rotateVector turns x to y by a quar
   for (const yaw of [-2.5, -1, 0, 0.7, 3]) assert.ok(Math.abs(headingOf(yawQuaternion(yaw)) - yaw) < 1e-9);
   const [x, y, z] = rotateVector(yawQuaternion(Math.PI / 2), [1, 0, 0]);
   assert.ok(Math.abs(x) < 1e-12 && Math.abs(y - 1) < 1e-12 && Math.abs(z) < 1e-12);
+});
+
+describe("camera mode's orientation fusion", () => {
+  const turn = (axis, radians) => { const q = [0, 0, 0, Math.cos(radians / 2)]; q[axis] = Math.sin(radians / 2); return q; };
+  const worldOffset = turn(2, 1.2);  // the sensors' world (north) is turned from the screen's
+
+  test("without sensors it passes the marker's rotation through", () => {
+    const fusion = new OrientationFusion();
+    assert.deepEqual(fusion.camera(turn(1, 0.3), 0), turn(1, 0.3));
+  });
+
+  test("with sensors it finds their world's offset and keeps the marker's jitter out", () => {
+    const fusion = new OrientationFusion(), noise = gaussian(7), errors = [], raw = [];
+    for (let i = 0; i < 300; i += 1) {
+      const nowMs = (i * 1000) / 30, body = turn(0, 0.2 + 0.3 * Math.sin(i / 40));
+      fusion.sensor(body, nowMs);  // the body in the sensors' world
+      const jitter = turn(1, 0.03 * noise());  // ~1.7 degrees of marker noise
+      const seen = quatMultiply(jitter, quatMultiply(worldOffset, body));
+      const out = fusion.camera(seen, nowMs);
+      if (i > 150) { errors.push(angleBetween(out, quatMultiply(worldOffset, body))); raw.push(angleBetween(seen, quatMultiply(worldOffset, body))); }
+    }
+    assert.ok(rms(errors) < rms(raw) / 3, `fused ${rms(errors)} rad vs marker ${rms(raw)} rad`);
+  });
+
+  test("stale sensors (over half a second) are not used", () => {
+    const fusion = new OrientationFusion();
+    fusion.sensor(turn(0, 1), 0);
+    assert.deepEqual(fusion.camera(turn(1, 0.3), 600), turn(1, 0.3));
+  });
 });

@@ -1,13 +1,18 @@
 // The phone controller: pair with a code, then the phone is a 6-DoF input device. With WebXR
 // (Android Chrome + ARCore) the phone's tracked pose, filtered (pose_filter.js), is the device
-// pose; otherwise its orientation sensors give the rotation and the drag pads the translation.
+// pose; without it (iPhones) the rear camera tracks a marker on the worker's screen
+// (camera_mode.js); otherwise its orientation sensors give the rotation and the drag pads the
+// translation.
 // docs/phone.md says which phone gets which mode.
 
 import { call } from "./api.js";
+import { cameraSupported } from "./camera.js";
+import { cameraOrientation, startCameraMode } from "./camera_mode.js";
 import { quatMultiply } from "./devices.js";
 import { PhonePoseFilter } from "./pose_filter.js";
 import { Protocol } from "./protocol.js";
 import { TeleopConnection } from "./rtc.js";
+import { takePose } from "./tracked_pose.js";
 import { XrTracker, arSupported } from "./xr.js";
 
 const $ = (id) => document.getElementById(id);
@@ -25,11 +30,13 @@ class PhoneState {
     this.quaternion = [0, 0, 0, 1];  // x, y, z, w
     this.engaged = false;
     this.gripper = false;
-    this.source = "none";  // what moves the hand: "none", "orientation" or "xr"
+    this.source = "none";  // what moves the hand: "none", "orientation", "xr" or "camera"
     this.haptics = 0;  // haptic events received
     this.xr = null;  // the XrTracker, while AR tracking runs
-    this.tracking = "none";  // AR tracking: "none", "starting", "tracking" or "lost"
-    this.filter = null;  // the PhonePoseFilter of the AR session
+    this.camera = null;  // the CameraTracker, while camera tracking runs
+    this.tracking = "none";  // AR or camera tracking: "none", "starting", "tracking" or "lost"
+    this.filter = null;  // the PhonePoseFilter of the AR or camera session
+    this.fusion = null;  // camera mode's OrientationFusion
     this.rawPose = null;  // the last tracked pose before filtering (robot-style frame)
     this.stallShown = false;
     this.ready = false;
@@ -60,9 +67,16 @@ export function orientationQuaternion(alpha, beta, gamma) {
 
 function onOrientation(event) {
   if (phone.source === "xr" || event.alpha === null) return;
-  phone.quaternion = orientationQuaternion(event.alpha, event.beta, event.gamma);
+  const quaternion = orientationQuaternion(event.alpha, event.beta, event.gamma);
+  if (phone.camera) cameraOrientation(phone, quaternion);
+  if (phone.source === "camera") return;
+  phone.quaternion = quaternion;
   phone.source = "orientation";
-  $("motion").textContent = "orientation sensors + drag";
+  if (!phone.camera) showMode("orientation sensors + drag");
+}
+
+function showMode(text) {
+  $("motion").textContent = text;
 }
 
 // Over plain http on a LAN a browser hides the motion sensors and WebXR without a word; say so,
@@ -104,8 +118,16 @@ async function enableOrientation() {
 async function modeReason() {
   if (!phone.secure) return "The page is not on https, so the browser keeps the motion sensors off.";
   if (await arSupported()) return "This phone can track itself in 3D: tap \"Track phone in 3D\" for full 6-DoF.";
+  if (cameraSupported()) return "No AR tracking in this browser (as on iPhones): tap \"Track the marker\" and point the back camera at your computer's screen for full 6-DoF.";
   if (!navigator.xr) return "This browser has no WebXR (as on iPhones): the phone turns the hand, the pads move it.";
   return "This phone has no AR tracking (on Android: install Google Play Services for AR): the phone turns the hand, the pads move it.";
+}
+
+// Camera tracking is offered where AR tracking is not: the phone needs a camera and https.
+async function enableCamera() {
+  if (await arSupported() || !cameraSupported()) return;
+  $("start-camera").hidden = false;
+  $("start-camera").onclick = () => startCameraMode({ phone, setClutch, banner, showMode });
 }
 
 async function enableXR() {
@@ -129,17 +151,9 @@ async function startXR() {
   let recentred = false;
   // The overlay is the whole page: the banner must show in AR too.
   const tracker = new XrTracker($("phone-ui"), {
-    pose: ({ position, quaternion }, timeS) => {
-      if (!recentred) { filter.recentreHeading(quaternion); recentred = true; }
-      phone.rawPose = { position, quaternion };
-      const out = filter.update(position, quaternion, timeS);
-      if (out.glitch) {
-        setClutch(false);
-        banner("error", "Tracking jumped, so the robot stopped. Press the hold button again.");
-        return;
-      }
-      phone.position = out.position;
-      phone.quaternion = out.quaternion;
+    pose: (pose, timeS) => {
+      if (!recentred) { filter.recentreHeading(pose.quaternion); recentred = true; }
+      takePose({ phone, setClutch, banner }, filter, pose, timeS);
     },
     trackingLost: () => {
       phone.tracking = "lost";
@@ -235,7 +249,7 @@ function dragPad(element, apply) {
     try { element.setPointerCapture(e.pointerId); } catch { /* synthetic pointers have none */ }
   });
   element.addEventListener("pointermove", (e) => {
-    if (!last || phone.source === "xr") return;
+    if (!last || phone.source === "xr" || phone.source === "camera") return;
     const scale = PAD_METRES / element.clientWidth;
     apply((e.clientX - last[0]) * scale, (e.clientY - last[1]) * scale);
     last = [e.clientX, e.clientY];
@@ -312,6 +326,7 @@ async function pair(code, key) {
   wireControls();
   await enableOrientation();
   await enableXR();
+  await enableCamera();
   $("motion-why").textContent = await modeReason();
   phone.ready = true;
 }

@@ -162,3 +162,33 @@ export class PhonePoseFilter {
     return { ...this.output, glitch: false, limited };
   }
 }
+
+const inverse = ([x, y, z, w]) => [-x, -y, -z, w];
+
+// Camera mode's rotation: the orientation sensors turn smoothly at 60 Hz and drift slowly; the
+// marker's rotation does not drift but jitters. The output is the sensors' rotation carried
+// into the marker's frame by an offset that follows the marker's rotation slowly (a
+// complementary filter). Both inputs are the phone's body frame, in their own world frames.
+export class OrientationFusion {
+  constructor({ gain = 0.05, staleMs = 500 } = {}) {
+    Object.assign(this, { gain, staleMs, offset: null, sensorQ: null, sensorAtMs: -Infinity });
+  }
+
+  sensor(bodyQ, nowMs) {
+    this.sensorQ = bodyQ;
+    this.sensorAtMs = nowMs;
+  }
+
+  // The rotation to use for a marker rotation seen at nowMs: the fused one while the sensors
+  // are fresh, else the marker's own.
+  camera(bodyQ, nowMs) {
+    if (!this.sensorQ || nowMs - this.sensorAtMs > this.staleMs) {
+      this.offset = null;
+      return bodyQ;
+    }
+    const target = quatMultiply(bodyQ, inverse(this.sensorQ));
+    this.offset = this.offset ? slerp(this.offset, target, this.gain) : target;
+    const fused = quatMultiply(this.offset, this.sensorQ), n = Math.hypot(...fused);
+    return fused.map((v) => v / n);
+  }
+}
