@@ -122,21 +122,24 @@ class Compositor:
     ) -> npt.NDArray[np.uint8]:
         """The picture from ``camera`` for the render model's current pose, rows top-down.
 
-        Frames with ``markers`` are drawn in one pass: a see-through marker blends over what
-        is behind it, which the depth merge cannot do (see `_see_through_part_visible`).
-        They are rare (a practice round's target), so the few milliseconds more are fine.
+        Opaque markers are drawn with the moving layer and merged by depth like it. A
+        see-through marker blends over what is behind it, which the depth merge cannot do (see
+        `_see_through_part_visible`), so its frames are drawn in one pass (~5x the cost).
         """
         self._fit_buffer(width, height)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
-        if markers or not (self._layers.composite_ok and self._static_camera[camera]):
+        see_through = any(marker.rgba[3] < 1 for marker in markers)
+        if see_through or not (self._layers.composite_ok and self._static_camera[camera]):
             return self._single_pass(camera, width, height, markers)
         background = self._background(camera, width, height)
         if self._see_through_part_visible(background, camera, width, height):
-            return self._single_pass(camera, width, height)
+            return self._single_pass(camera, width, height, markers)
         self._composited_in_a_row += 1
         if self._composited_in_a_row >= PARK_AFTER_FRAMES and self._textures.park(self._context):
             self.textures_parked = True
-        rgb, depth = self._draw(camera, width, height, self._moving_option, skybox=False)
+        rgb, depth = self._draw(
+            camera, width, height, self._moving_option, skybox=False, markers=markers
+        )
         # Bottom-up like GL; only the (few) pixels the moving layer wins are copied, each as one
         # 3-byte item (a third faster than indexing (N, 3) rows).
         frame = background.rgb_bottom_up.copy()

@@ -194,6 +194,8 @@ function showStatus() {
     $("timer").textContent = `${formatSeconds(s.elapsed_s)} / ${formatSeconds(s.time_limit_s)}`;
     $("stage").textContent = s.message || s.stage || "–";
     $("driver").textContent = s.controlling_device || "nobody";
+    // The QR code has done its job: the phone camera's marker moves up into view.
+    document.body.classList.toggle("phone-drives", s.controlling_device === "phone");
   });
   c.addEventListener("videostall", ({ detail }) => {
     if (detail.stalled) {
