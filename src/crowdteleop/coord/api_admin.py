@@ -72,7 +72,7 @@ async def overview(coordinator: CoordinatorDep) -> AdminOverview:
     episodes = await store.episodes()
     return AdminOverview(
         now=now,
-        capacity=coordinator.config.capacity,
+        capacity=coordinator.pool.capacity,
         sessions=[s for s in summaries if s.state != "queued"],
         queue=[s for s in summaries if s.state == "queued"],
         teleop_servers=servers,

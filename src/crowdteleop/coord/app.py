@@ -14,6 +14,7 @@ from fastapi import Depends, FastAPI, Request
 from fastapi.responses import Response
 
 from crowdteleop.coord import api_admin, api_internal, api_pairing, api_sessions, pages
+from crowdteleop.coord.cluster import follow_cluster
 from crowdteleop.coord.config import CoordConfig
 from crowdteleop.coord.db import make_engine, migrate
 from crowdteleop.coord.deps import require_admin
@@ -35,6 +36,18 @@ from crowdteleop.web import qr
 log = logging.getLogger(__name__)
 
 
+def _launcher(config: CoordConfig) -> Launcher:
+    if config.ray is not None:
+        from crowdteleop.coord.ray_launcher import RayLauncher
+
+        return RayLauncher(config.ray, config.teleop_host)
+    return LocalProcessLauncher(
+        config.data_dir / "sessions",
+        start_timeout_s=config.teleop_start_timeout_s,
+        host=config.teleop_host,
+    )
+
+
 def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI:
     """Everything server-wide lives on `app.state`, built and torn down by the lifespan."""
 
@@ -44,13 +57,10 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         keys = SessionKeys.load_or_create(config.data_dir / "state" / SESSION_SECRET_FILE)
         await migrate(config.database_url)
         store = Store(make_engine(config.database_url))
-        chosen = launcher or LocalProcessLauncher(
-            config.data_dir / "sessions",
-            start_timeout_s=config.teleop_start_timeout_s,
-            host=config.teleop_host,
-        )
+        chosen = launcher or _launcher(config)
         metrics = CoordMetrics()
         coordinator = Coordinator(config, store, chosen, keys, metrics)
+        await follow_cluster(coordinator, admit=False)  # a cluster's room, before admitting
         await coordinator.start()
         app.state.coordinator = coordinator
         app.state.guards = Guards.of(config, metrics)
@@ -102,7 +112,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         spares = sum(len(ready) for ready in coordinator.spares.ready.values())
         return {
             "status": "ok",
-            "capacity": config.capacity,
+            "capacity": coordinator.pool.capacity,
             "busy": len(coordinator.pool.slots),
             "spares": spares,
         }
@@ -115,7 +125,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         live = await coordinator.store.live_sessions()
         for state in ("queued", "starting", "ready"):
             metrics.sessions.labels(state=state).set(sum(s.state == state for s in live))
-        metrics.capacity.set(config.capacity)
+        metrics.capacity.set(coordinator.pool.capacity)
         metrics.spares.set(sum(len(ready) for ready in coordinator.spares.ready.values()))
         recent = await coordinator.store.episodes_since(time.time() - 3600)
         metrics.demos_last_hour.set(sum(e.outcome == "success" for e in recent))

@@ -9,6 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from crowdteleop.coord.campaign import CampaignConfig, read_structured
 from crowdteleop.coord.clients import ProxyTrust
+from crowdteleop.coord.ray_launcher import RayLauncherConfig
 from crowdteleop.coord.security import ADMIN_TOKEN_MIN_BITS, estimated_entropy_bits
 from crowdteleop.coord.turn import TurnConfig
 from crowdteleop.teleop.ice import IceServer, IceTransportPolicy
@@ -46,7 +47,12 @@ class CoordConfig(BaseModel):
     database_url: str = "sqlite:///data/coord.sqlite3"
     data_dir: Path = Field(Path("data"), description="episodes, teleop configs and logs")
     campaigns: list[CampaignConfig] = Field(default_factory=lambda: [CampaignConfig()])
-    capacity: int = Field(2, ge=1, le=256, description="teleop servers running at once")
+    capacity: int = Field(
+        2, ge=1, le=256, description="teleop servers running at once (with `ray`: the cluster's)"
+    )
+    ray: RayLauncherConfig | None = Field(
+        None, description="run teleop servers on this Ray cluster instead of as local processes"
+    )
     spare_servers: int = Field(
         1,
         ge=0,

@@ -61,6 +61,41 @@ class Launcher(Protocol):
     def alive(self, handle: TeleopHandle) -> bool: ...
 
 
+@runtime_checkable
+class ClusterLauncher(Protocol):
+    """A launcher whose room is a cluster's: capacity is read from it, demand is told to it."""
+
+    def capacity(self) -> int: ...
+
+    def request(self, sessions: int) -> None: ...
+
+
+@runtime_checkable
+class ReattachingLauncher(Protocol):
+    """A launcher whose servers outlive the coordinator (Ray's detached actors): a restarted
+    coordinator takes its running sessions' servers back instead of orphaning them."""
+
+    async def reattach(self, session_id: str) -> TeleopHandle | None:
+        """The session's running server, or None (gone, or never started)."""
+        ...
+
+    async def stop_others(self, session_ids: set[str]) -> int:
+        """Stop every server of this launcher not serving `session_ids`; how many."""
+        ...
+
+
+async def reattach(launcher: Launcher, session_id: str) -> TeleopHandle | None:
+    return (
+        await launcher.reattach(session_id) if isinstance(launcher, ReattachingLauncher) else None
+    )
+
+
+async def stop_orphans(launcher: Launcher, session_ids: set[str]) -> int:
+    if not isinstance(launcher, ReattachingLauncher):
+        return 0  # local servers die with the coordinator (PR_SET_PDEATHSIG)
+    return await launcher.stop_others(session_ids)
+
+
 @dataclass
 class LocalHandle:
     url: str

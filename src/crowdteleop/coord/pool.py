@@ -43,6 +43,15 @@ class TeleopPool:
         slot = self.slots[session_id] = Slot(session_id)
         return slot
 
+    def attach(self, session_id: str, handle: TeleopHandle | None) -> bool:
+        """A server still running from before a coordinator restart (if any) takes its slot
+        back; whether there was one."""
+        if handle is None:
+            return False
+        self.slots[session_id] = Slot(session_id, handle=handle)
+        log.info("session %s: its teleop server %s is still running", session_id, handle.url)
+        return True
+
     def holds(self, session_id: str) -> bool:
         return session_id in self.slots
 

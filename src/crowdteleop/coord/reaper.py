@@ -6,6 +6,7 @@ import asyncio
 import logging
 import time
 
+from crowdteleop.coord.cluster import follow_cluster
 from crowdteleop.coord.service import Coordinator
 
 log = logging.getLogger(__name__)
@@ -48,6 +49,7 @@ async def run_reaper(coordinator: Coordinator) -> None:
     while True:
         await asyncio.sleep(coordinator.config.reaper_interval_s)
         try:
+            await follow_cluster(coordinator)
             await reap_once(coordinator)
         except asyncio.CancelledError:
             raise

@@ -17,7 +17,7 @@ from typing import Any
 from crowdteleop.coord.campaign import CampaignConfig
 from crowdteleop.coord.config import CoordConfig
 from crowdteleop.coord.errors import ApiError
-from crowdteleop.coord.launcher import Launcher, LaunchError
+from crowdteleop.coord.launcher import Launcher, LaunchError, reattach, stop_orphans
 from crowdteleop.coord.limits import retry_after
 from crowdteleop.coord.metrics import CoordMetrics, RestartCause
 from crowdteleop.coord.pool import TeleopPool
@@ -60,21 +60,24 @@ class Coordinator:
     # --- lifecycle ------------------------------------------------------------------------
 
     async def start(self) -> None:
-        """Sessions a previous run left live keep their place: the queued stay queued, and
-        those that had a server (gone with the previous run) are queued again ahead of them,
-        their counts kept. Every page gets a fresh heartbeat allowance."""
+        """Sessions a previous run left live keep their place: the queued stay queued, a
+        ready one whose server outlived the run (a cluster launcher's) keeps it, and the others
+        are queued again ahead of the queue, their counts kept. Every page gets a fresh
+        heartbeat allowance; servers no live session holds are stopped."""
         await self.store.save_campaigns(self.config.campaigns)
-        now = time.time()
+        now, launcher = time.time(), self.pool.launcher
         async with self.lock:
             for session in await self.store.live_sessions():
-                if session.state == "queued":
-                    await self.store.update_session(
-                        session.id, only_if_state=("queued",), last_heartbeat_at=now
-                    )
+                if session.state == "queued" or (
+                    session.state == "ready"
+                    and self.pool.attach(session.id, await reattach(launcher, session.id))
+                ):
+                    await self.store.update_session(session.id, last_heartbeat_at=now)
                 elif await self.store.requeue(
                     session.id, "the coordinator restarted", count_restart=False
                 ):
                     self.metrics.restarts.labels(cause="coordinator_restart").inc()
+            await stop_orphans(launcher, set(self.pool.slots))
             await self._admit()
         self.spares.fill(self.configs.spare_keys())
 
@@ -164,6 +167,10 @@ class Coordinator:
                 f"{limits.max_wait_s / 60:.0f} min; please try again later",
                 headers=retry_after(min(wait_s - limits.max_wait_s, 3600)),
             )
+
+    async def admit(self) -> None:
+        async with self.lock:
+            await self._admit()
 
     async def _admit(self) -> None:
         """Give free slots to the oldest queued sessions (caller holds the lock)."""
