@@ -27,7 +27,8 @@ pytestmark = [
 
 
 def in_private_network(command: str, timeout_s: float) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
+    # RAY_AUTH_MODE set: a local ray.init() would otherwise write a token into ~/.ray.
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "disabled"}
     return subprocess.run(
         ["unshare", "--net", "--", "bash", "-c", f"ip link set lo up && {command}"],
         capture_output=True,
