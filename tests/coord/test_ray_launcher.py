@@ -2,8 +2,7 @@
 slot each, a coordinator launching on them, two bots as workers. Each session lands on its own
 node. The coordinator killed with SIGKILL and restarted takes both servers back (the workers
 keep driving). Killing the second node's raylet is then noticed within 10 s, its worker is
-told and given a new robot with the partial episode kept, and the other session keeps
-driving.
+told and given a new robot with their count kept, and the other session keeps driving.
 
 Ray listens on every interface and has no authentication by default, so everything runs in a
 network namespace of its own that reaches nothing outside (`unshare --net`, which needs
@@ -76,6 +75,7 @@ def test_sessions_spread_over_raylets_survive_a_coordinator_restart_and_a_node_l
     assert results["servers_left"] == 0, "no teleop server outlives the coordinator's shutdown"
     assert lost["error"] is None and lost["code"] and lost["reconnects"] == 1, lost
     assert any("new robot is on its way" in n for n in lost["notices"]), lost["notices"]
-    episodes, _ = read_inputs(episode_files([Path(results["data_dir"]) / "episodes"]))
-    crashes = [e for _, e in episodes if e.outcome == "crash"]
-    assert len(crashes) == 1 and crashes[0].recovered, "the partial episode is kept, as a crash"
+    episodes, bad = read_inputs(episode_files([Path(results["data_dir"]) / "episodes"]))
+    assert not bad, "every stored episode reads back"
+    successes = [e for _, e in episodes if e.outcome == "success"]
+    assert len(successes) >= 12, "both workers' demonstrations are stored"
