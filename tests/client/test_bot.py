@@ -2,6 +2,23 @@
 
 from __future__ import annotations
 
+from typing import Any
+
+
+def _recording_client() -> tuple[Any, list[dict]]:
+    """A bot's client that keeps what it sends instead of sending it, its hello received."""
+    from crowdteleop.client.connection import TeleopClient
+    from crowdteleop.teleop.protocol import Hello
+
+    client = TeleopClient("http://127.0.0.1:9", "worker-token", role="admin", admin_token="x")
+    sent: list[dict] = []
+    client.send_raw = lambda channel, message: sent.append(message) or True  # type: ignore[method-assign]
+    client.state.hello = Hello(
+        session_id="s", peer_id="p", role="admin", task="lift", instruction="", fps=20.0,
+        width=320, height=240, controlling_device="bot",
+    )  # fmt: skip
+    return client, sent
+
 
 def test_the_bot_presses_the_clutch_again_only_once_the_server_applied_its_release():
     """After a reset the server must see the bot let go before the next press: it applies
@@ -9,9 +26,8 @@ def test_the_bot_presses_the_clutch_again_only_once_the_server_applied_its_relea
     (pressed). A press that follows the release too soon leaves the server anchored on a
     stale pose, and the bot steering an arm that is not where it thinks (it stalls)."""
     from crowdteleop.client.bot import Bot
-    from crowdteleop.client.connection import TeleopClient
     from crowdteleop.sim import SimConfig, make_simulation
-    from crowdteleop.teleop.protocol import Hello, PrivilegedState
+    from crowdteleop.teleop.protocol import PrivilegedState
     from crowdteleop.teleop.session import _privileged
 
     sim = make_simulation(SimConfig(task="lift"))
@@ -20,13 +36,7 @@ def test_the_bot_presses_the_clutch_again_only_once_the_server_applied_its_relea
         scene = _privileged(sim, sim.robot_state().end_effector)
     finally:
         sim.close()
-    client = TeleopClient("http://127.0.0.1:9", "worker-token", role="admin", admin_token="x")
-    sent: list[dict] = []
-    client.send_raw = lambda channel, message: sent.append(message) or True  # type: ignore[method-assign]
-    client.state.hello = Hello(
-        session_id="s", peer_id="p", role="admin", task="lift", instruction="", fps=20.0,
-        width=320, height=240, controlling_device="bot",
-    )  # fmt: skip
+    client, sent = _recording_client()
     Bot(client, seed=0)  # drives through client.on_privileged, as messages arrive
 
     def server_step(step: int, applied_seq: int) -> dict:
@@ -44,16 +54,9 @@ def test_the_bot_skips_a_practice_round_once_and_leaves_the_arm_alone_meanwhile(
     """Bots skip the practice round as a worker may (one message): their episodes time the
     task, and they take the very path a worker's page takes (no server setting of their own)."""
     from crowdteleop.client.bot import Bot
-    from crowdteleop.client.connection import TeleopClient
-    from crowdteleop.teleop.protocol import Hello, PrivilegedState, TaskStatus
+    from crowdteleop.teleop.protocol import PrivilegedState, TaskStatus
 
-    client = TeleopClient("http://127.0.0.1:9", "worker-token", role="admin", admin_token="x")
-    sent: list[dict] = []
-    client.send_raw = lambda channel, message: sent.append(message) or True  # type: ignore[method-assign]
-    client.state.hello = Hello(
-        session_id="s", peer_id="p", role="admin", task="lift", instruction="", fps=20.0,
-        width=320, height=240, controlling_device="bot",
-    )  # fmt: skip
+    client, sent = _recording_client()
     Bot(client, seed=0)
     scene = {"end_effector": (0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0), "objects": {}}
 

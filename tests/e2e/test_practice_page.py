@@ -10,7 +10,7 @@ import re
 
 import pytest
 
-from tests.fixtures.browser import browser_context, require_chromium, wait_js
+from tests.fixtures.browser import browser_context, join_to_video, require_chromium, wait_js
 from tests.fixtures.coord import coord_server
 
 pytestmark = pytest.mark.slow
@@ -33,12 +33,7 @@ def test_the_page_shows_the_practice_round_and_skipping_it_leads_to_demonstratio
         async def visit() -> dict:
             async with async_playwright() as playwright, browser_context(playwright) as desktop:
                 page = await desktop.new_page()
-                await page.goto(coord.url + JOIN)
-                await page.check("#consent")
-                await page.click("#agree")
-                await page.wait_for_url("**/teleop")
-                await wait_js(page, "window.crowdteleop.ready === true", 150)
-                await wait_js(page, "crowdteleop.connection.framesShown > 10", 30)
+                await join_to_video(page, coord.url + JOIN)
                 seen: dict = {"first": await wait_js(page, f"{SHOWN} && {TEXT}", 10)}
                 left_s = await page.evaluate(f"{STATUS}.practice_left_s")
                 await page.keyboard.down("r")  # moving while practising

@@ -9,7 +9,7 @@ import asyncio
 
 import pytest
 
-from tests.fixtures.browser import browser_context, require_chromium, wait_js
+from tests.fixtures.browser import browser_context, join_to_video, require_chromium, wait_js
 from tests.fixtures.coord import coord_server
 
 pytestmark = pytest.mark.slow
@@ -29,12 +29,7 @@ def test_a_stalled_video_releases_the_clutch_and_the_page_says_so(tmp_path, scre
         async def visit() -> dict:
             async with async_playwright() as playwright, browser_context(playwright) as desktop:
                 page = await desktop.new_page()
-                await page.goto(coord.url + JOIN)
-                await page.check("#consent")
-                await page.click("#agree")
-                await page.wait_for_url("**/teleop")
-                await wait_js(page, "window.crowdteleop.ready === true", 150)
-                await wait_js(page, "crowdteleop.connection.framesShown > 10", 30)
+                await join_to_video(page, coord.url + JOIN)
                 limit_ms = await page.evaluate("crowdteleop.connection.state.hello.video_stall_ms")
                 # the picture freezes: no new frame is presented
                 await page.evaluate("document.getElementById('video').pause()")
