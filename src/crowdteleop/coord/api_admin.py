@@ -7,6 +7,7 @@ from typing import Any
 
 from fastapi import APIRouter, Depends
 
+from crowdteleop.coord import views
 from crowdteleop.coord.deps import CoordinatorDep, SessionId, require_admin
 from crowdteleop.coord.errors import ApiError
 from crowdteleop.coord.schemas import (
@@ -91,7 +92,7 @@ async def session_view(session_id: SessionId, coordinator: CoordinatorDep) -> Se
     session = await coordinator.store.session(session_id)
     if session is None:
         raise ApiError(404, "not_found", "no such session")
-    return await coordinator.view(session)
+    return await views.session_view(coordinator, session)
 
 
 @router.get("/sessions/{session_id}/episodes", response_model=list[EpisodeView])
@@ -130,4 +131,4 @@ async def end_session(session_id: SessionId, coordinator: CoordinatorDep) -> Ses
     await coordinator.end(session_id, "error", error="ended by an admin")
     ended = await coordinator.store.session(session_id)
     assert ended is not None
-    return await coordinator.view(ended)
+    return await views.session_view(coordinator, ended)

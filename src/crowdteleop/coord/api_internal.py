@@ -7,6 +7,7 @@ from typing import Any
 from fastapi import APIRouter
 
 from crowdteleop.coord.deps import CoordinatorDep, Credentials, token_of
+from crowdteleop.coord.episodes import report_episode
 from crowdteleop.coord.errors import ApiError
 from crowdteleop.coord.schemas import EpisodeAck, ErrorBody
 from crowdteleop.teleop.messages import EpisodeReport
@@ -26,4 +27,4 @@ async def episode_report(
         raise ApiError(401, "unauthorized", "a session's report token is required")
     if report.session_id != session.id:
         raise ApiError(403, "wrong_session", "this token reports for another session")
-    return await coordinator.report_episode(session, report)
+    return await report_episode(coordinator, session, report)

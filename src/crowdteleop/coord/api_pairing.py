@@ -57,10 +57,10 @@ async def pair(
     if body.key:
         redeemed = await coordinator.store.pairing.redeem(code, time.time(), key=body.key)
     else:
-        guards.check_pairing(client)
+        await guards.check_pairing(client)
         redeemed = await coordinator.store.pairing.redeem(code, time.time())
     if redeemed is None:
-        guards.pairing_failed(client)
+        await guards.pairing_failed(client)
         raise ApiError(404, "bad_code", "that code is wrong, expired or already used")
     session_id, token = redeemed
     session = await coordinator.store.session(session_id)

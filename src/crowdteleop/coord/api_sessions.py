@@ -32,6 +32,7 @@ from crowdteleop.coord.schemas import (
 )
 from crowdteleop.coord.store import SessionInUseError
 from crowdteleop.coord.teleop_proxy import forward_offer
+from crowdteleop.coord.views import session_view
 from crowdteleop.teleop.messages import OfferAnswer
 
 ERRORS: dict[int | str, dict[str, Any]] = {
@@ -128,14 +129,14 @@ async def create_session(
     campaign = coordinator.config.campaign(worker.campaign) or coordinator.config.default_campaign
     tag = coordinator.keys.client_tag(client)
     session = await coordinator.create_session(worker, campaign, tag)
-    return await coordinator.view(session, worker)
+    return await session_view(coordinator, session, worker)
 
 
 @router.get("/sessions/{session_id}", response_model=SessionView)
 async def get_session(
     session: OwnedSession, worker: WorkerDep, coordinator: CoordinatorDep
 ) -> SessionView:
-    return await coordinator.view(session, worker)
+    return await session_view(coordinator, session, worker)
 
 
 @router.post("/sessions/{session_id}/heartbeat", response_model=SessionView)
@@ -148,7 +149,7 @@ async def heartbeat(
     """Keeps the session (or its place in the queue); silence ends it as abandoned."""
     await coordinator.heartbeat(session, body.interface if body else None)
     refreshed = await coordinator.store.session(session.id) or session
-    return await coordinator.view(refreshed, worker)
+    return await session_view(coordinator, refreshed, worker)
 
 
 @router.post("/sessions/{session_id}/leave", response_model=SessionView)
@@ -177,7 +178,7 @@ async def _end(coordinator: CoordinatorDep, session_id: str, worker: WorkerDep) 
     await coordinator.end(session_id, "left")
     session = await coordinator.store.session(session_id)
     assert session is not None
-    return await coordinator.view(session, worker)
+    return await session_view(coordinator, session, worker)
 
 
 @router.post("/sessions/{session_id}/offer", response_model=OfferAnswer)

@@ -63,7 +63,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         await follow_cluster(coordinator, admit=False)  # a cluster's room, before admitting
         await coordinator.start()
         app.state.coordinator = coordinator
-        app.state.guards = Guards.of(config, metrics)
+        app.state.guards = Guards.of(config, metrics, store.transactions)
         app.state.http = aiohttp.ClientSession()
         watchers = [
             asyncio.create_task(run_reaper(coordinator), name="reaper"),

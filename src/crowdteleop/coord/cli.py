@@ -116,6 +116,7 @@ def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFil
     from crowdteleop.coord.campaign import load_campaigns
     from crowdteleop.coord.config import CoordConfig
     from crowdteleop.coord.private import private_dir
+    from crowdteleop.coord.replicas import default_replica_name
     from crowdteleop.coord.tls import local_names, self_signed
 
     family = socket.AF_INET6 if ":" in o.host else socket.AF_INET
@@ -151,9 +152,15 @@ def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFil
         "admin_token": o.admin_token,
         "data_dir": o.data_dir,
         "public_url": o.public_url or f"{scheme}://{shown}:{bound}",
-        "internal_url": internal,
-        "database_url": o.database_url or f"sqlite:///{o.data_dir / 'coord.sqlite3'}",
     }
+    # A config file may say otherwise (replicas behind a load balancer report through it).
+    defaults = {
+        "internal_url": internal,
+        "replica_name": default_replica_name(bound),
+        "database_url": f"sqlite:///{o.data_dir / 'coord.sqlite3'}",
+    }
+    if o.database_url is not None:
+        fields["database_url"] = o.database_url
     if o.campaign is not None:
         fields["campaigns"] = load_campaigns(o.campaign)
     if o.capacity is not None:
@@ -163,8 +170,8 @@ def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFil
     if o.ice_servers:
         fields["ice_servers"] = o.ice_servers
     if o.config is not None:
-        return CoordConfig.from_file(o.config, **fields), sockets, tls
-    return CoordConfig.model_validate(fields), sockets, tls
+        return CoordConfig.from_file(o.config, defaults, **fields), sockets, tls
+    return CoordConfig.model_validate({**defaults, **fields}), sockets, tls
 
 
 async def _run(

@@ -85,6 +85,15 @@ class CoordConfig(BaseModel):
     )
     heartbeat_timeout_s: float = Field(30.0, gt=0, description="silent this long: abandoned")
     reaper_interval_s: float = Field(1.0, gt=0)
+    replica_name: str | None = Field(
+        None,
+        max_length=128,
+        description="this coordinator's name among replicas sharing the database "
+        "(default host:port: a restarted one takes its sessions back at once)",
+    )
+    replica_stale_after_s: float = Field(
+        10.0, gt=0, description="a replica silent this long is gone: others take its sessions"
+    )
     teleop_start_timeout_s: float = Field(120.0, gt=0)
     pairing_ttl_s: float = Field(120.0, gt=0)
     pair_failures_per_minute: int = Field(
@@ -171,6 +180,9 @@ class CoordConfig(BaseModel):
         return (self.internal_url or self.public_url).rstrip("/")
 
     @classmethod
-    def from_file(cls, path: Path, **overrides: Any) -> CoordConfig:
+    def from_file(
+        cls, path: Path, defaults: dict[str, Any] | None = None, **overrides: Any
+    ) -> CoordConfig:
+        """The file's settings over `defaults`, under `overrides`."""
         data = read_structured(path) or {}
-        return cls.model_validate({**data, **overrides})
+        return cls.model_validate({**(defaults or {}), **data, **overrides})

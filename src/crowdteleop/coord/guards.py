@@ -4,13 +4,15 @@ Joins are limited per client address and in total; wrong pairing codes per addre
 total (the code space's budget: 28^6 codes, so a few hundred wrong guesses a minute from
 everyone together leave a live code safe for its two minutes); wrong admin tokens per
 address. A right QR link (its long key) is never limited, so a worker behind an address a
-guesser shares still pairs. See docs/security.md.
+guesser shares still pairs. Wrong codes are counted in the database, across every replica
+(`coord/shared_limits.py`); the others in this replica's memory. See docs/security.md.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 from starlette.requests import HTTPConnection
 
 from crowdteleop.coord.clients import ProxyTrust, client_key
@@ -18,6 +20,7 @@ from crowdteleop.coord.config import CoordConfig
 from crowdteleop.coord.errors import ApiError
 from crowdteleop.coord.limits import WindowLimiter, retry_after
 from crowdteleop.coord.metrics import CoordMetrics, Refusal
+from crowdteleop.coord.shared_limits import SharedWindowLimiter
 
 TOTAL = "all"
 
@@ -28,20 +31,29 @@ class Guards:
     metrics: CoordMetrics
     joins_per_address: WindowLimiter
     joins_total: WindowLimiter
-    pair_failures_per_address: WindowLimiter
-    pair_failures_total: WindowLimiter
+    pair_failures_per_address: SharedWindowLimiter
+    pair_failures_total: SharedWindowLimiter
     admin_failures_per_address: WindowLimiter
 
     @classmethod
-    def of(cls, config: CoordConfig, metrics: CoordMetrics) -> Guards:
+    def of(
+        cls,
+        config: CoordConfig,
+        metrics: CoordMetrics,
+        transactions: async_sessionmaker[AsyncSession],
+    ) -> Guards:
         admission = config.admission
         return cls(
             trust=ProxyTrust.of(config.trusted_proxies),
             metrics=metrics,
             joins_per_address=WindowLimiter(admission.joins_per_minute_per_address),
             joins_total=WindowLimiter(admission.joins_per_minute),
-            pair_failures_per_address=WindowLimiter(config.pair_failures_per_minute),
-            pair_failures_total=WindowLimiter(config.pair_failures_per_minute_total),
+            pair_failures_per_address=SharedWindowLimiter(
+                transactions, "pair_failures_address", config.pair_failures_per_minute
+            ),
+            pair_failures_total=SharedWindowLimiter(
+                transactions, "pair_failures_total", config.pair_failures_per_minute_total
+            ),
             admin_failures_per_address=WindowLimiter(config.admin_failures_per_minute),
         )
 
@@ -52,7 +64,14 @@ class Guards:
     def _check(self, limiter: WindowLimiter, key: str, reason: Refusal, message: str) -> None:
         """Raise 429 (counted as `reason`) while `key` is over `limiter`'s limit; `message`
         gets the wait in seconds in place of `{wait}`."""
-        wait = limiter.wait_s(key)
+        self._refuse_if_waiting(limiter.wait_s(key), reason, message)
+
+    async def _check_shared(
+        self, limiter: SharedWindowLimiter, key: str, reason: Refusal, message: str
+    ) -> None:
+        self._refuse_if_waiting(await limiter.wait_s(key), reason, message)
+
+    def _refuse_if_waiting(self, wait: float, reason: Refusal, message: str) -> None:
         if wait > 0:
             self.metrics.refused(reason)
             text = message.format(wait=f"{wait:.0f}")
@@ -75,26 +94,26 @@ class Guards:
         self.joins_per_address.hit(client)
         self.joins_total.hit(TOTAL)
 
-    def check_pairing(self, client: str) -> None:
+    async def check_pairing(self, client: str) -> None:
         """Raise 429 if `client` (or everyone) has guessed too many wrong codes lately."""
         scan = "or scan the QR code instead (it always works)."
-        self._check(
+        await self._check_shared(
             self.pair_failures_per_address,
             client,
             "pair_rate_address",
             "Too many wrong codes from your network: try again in {wait} s, " + scan,
         )
-        self._check(
+        await self._check_shared(
             self.pair_failures_total,
             TOTAL,
             "pair_rate_total",
             "Too many wrong codes lately: try again in {wait} s, " + scan,
         )
 
-    def pairing_failed(self, client: str) -> None:
+    async def pairing_failed(self, client: str) -> None:
         self.metrics.refused("pair_bad_code")
-        self.pair_failures_per_address.hit(client)
-        self.pair_failures_total.hit(TOTAL)
+        await self.pair_failures_per_address.hit(client)
+        await self.pair_failures_total.hit(TOTAL)
 
     def check_admin(self, client: str) -> None:
         self._check(

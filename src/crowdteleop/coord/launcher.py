@@ -83,6 +83,10 @@ class ReattachingLauncher(Protocol):
         """Stop every server of this launcher not serving `session_ids`; how many."""
         ...
 
+    def release(self, handle: TeleopHandle) -> None:
+        """Stop watching the server, which keeps running for another coordinator."""
+        ...
+
 
 async def reattach(launcher: Launcher, session_id: str) -> TeleopHandle | None:
     return (

@@ -8,7 +8,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 
-from crowdteleop.coord.launcher import Launcher, TeleopHandle
+from crowdteleop.coord.launcher import Launcher, ReattachingLauncher, TeleopHandle
 
 log = logging.getLogger(__name__)
 
@@ -23,8 +23,9 @@ class Slot:
 
 
 class TeleopPool:
-    """At most `capacity` slots; a slot is taken when a session is admitted and given back the
-    moment it ends (its server is then stopped in the background, tracked here)."""
+    """The slots this replica watches, of at most `capacity` across replicas; a slot is taken
+    when a session is admitted and given back the moment it ends (its server is then stopped
+    in the background, tracked here)."""
 
     def __init__(self, launcher: Launcher, capacity: int) -> None:
         self.launcher = launcher
@@ -33,13 +34,8 @@ class TeleopPool:
         self._stopping: set[asyncio.Task[None]] = set()
         self._closing = asyncio.Event()
 
-    @property
-    def free(self) -> int:
-        return max(0, self.capacity - len(self.slots))
-
     def reserve(self, session_id: str) -> Slot:
-        if self.free == 0:
-            raise RuntimeError("no free slot")  # the caller checked: a bug if it happens
+        """The caller counted a free slot in the database (`Coordinator.free_slots`)."""
         slot = self.slots[session_id] = Slot(session_id)
         return slot
 
@@ -64,6 +60,13 @@ class TeleopPool:
         slot = self.slots.pop(session_id, None)
         if slot is not None and slot.handle is not None:
             self.stop_later(slot.handle)
+
+    def forget(self, session_id: str) -> None:
+        """Another replica watches this session's server now: let go of it, running."""
+        slot = self.slots.pop(session_id, None)
+        launcher = self.launcher
+        if slot is not None and slot.handle and isinstance(launcher, ReattachingLauncher):
+            launcher.release(slot.handle)
 
     def stop_later(self, handle: TeleopHandle, delay_s: float = 0.0) -> None:
         task = asyncio.create_task(self._stop(handle, delay_s), name="stop-teleop")

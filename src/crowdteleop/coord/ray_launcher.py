@@ -199,6 +199,11 @@ class RayLauncher:
             log.warning("stopped %d teleop servers no live session holds", stopped)
         return stopped
 
+    def release(self, handle: TeleopHandle) -> None:
+        assert isinstance(handle, RayHandle)
+        if handle.watcher is not None:
+            handle.watcher.cancel()
+
     async def _watch(self, handle: RayHandle) -> None:
         """Ask the actor until it fails to answer twice in a row; then it is dead."""
         failures = 0

@@ -8,6 +8,7 @@ import time
 
 from crowdteleop.coord.cluster import follow_cluster
 from crowdteleop.coord.service import Coordinator
+from crowdteleop.coord.takeover import sweep_shared_state
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +50,7 @@ async def run_reaper(coordinator: Coordinator) -> None:
     while True:
         await asyncio.sleep(coordinator.config.reaper_interval_s)
         try:
+            await sweep_shared_state(coordinator)
             await follow_cluster(coordinator)
             await reap_once(coordinator)
         except asyncio.CancelledError:

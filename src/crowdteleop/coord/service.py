@@ -1,9 +1,10 @@
 """The coordinator's core: sessions from queued to ended, the pool's slots, episode reports.
 
-All decisions that change who holds a slot happen under one asyncio lock, so admission is
-strictly FIFO and the capacity is never exceeded; the database records every step. A session
-whose teleop server exits or hangs is queued again at its old place with its count kept
-(`restart`), as is every running session when the coordinator itself restarts.
+All decisions that change who holds a slot happen under one admission lock, shared by every
+replica on PostgreSQL (`coord/replicas.py`), and count the slots in the database: admission is
+strictly FIFO and the capacity never exceeded, however many replicas serve. A session whose
+teleop server exits or hangs is queued again at its old place with its count kept (`restart`);
+so is a running session whose server a restarted coordinator cannot take back.
 """
 
 from __future__ import annotations
@@ -17,24 +18,26 @@ from typing import Any
 from crowdteleop.coord.campaign import CampaignConfig
 from crowdteleop.coord.config import CoordConfig
 from crowdteleop.coord.errors import ApiError
-from crowdteleop.coord.launcher import Launcher, LaunchError, reattach, stop_orphans
+from crowdteleop.coord.launcher import (
+    Launcher,
+    LaunchError,
+    ReattachingLauncher,
+    reattach,
+    stop_orphans,
+)
 from crowdteleop.coord.limits import retry_after
 from crowdteleop.coord.metrics import CoordMetrics, RestartCause
 from crowdteleop.coord.pool import TeleopPool
-from crowdteleop.coord.schemas import EpisodeAck, SessionView
-from crowdteleop.coord.security import new_completion_code, new_id, new_token, token_hash
+from crowdteleop.coord.replicas import AdmissionLock, Replicas, default_replica_name
+from crowdteleop.coord.security import new_id, new_token, token_hash
 from crowdteleop.coord.session_keys import SessionKeys
 from crowdteleop.coord.spares import SparePool
 from crowdteleop.coord.store import Store
-from crowdteleop.coord.tables import Episode, Session, Worker
+from crowdteleop.coord.tables import Session, Worker
 from crowdteleop.coord.teleop_configs import TeleopConfigs, assignment_of
 from crowdteleop.coord.waits import WaitEstimates
-from crowdteleop.tasks import get_task
-from crowdteleop.teleop.messages import EpisodeReport
 
 log = logging.getLogger(__name__)
-
-PROLIFIC_COMPLETE = "https://app.prolific.com/submissions/complete?cc="
 
 
 class Coordinator:
@@ -53,44 +56,83 @@ class Coordinator:
         self.configs = TeleopConfigs(config, keys)
         self.pool = TeleopPool(launcher, config.capacity)
         self.spares = SparePool(launcher, self.configs.for_spare, config.spare_servers)
-        self.lock = asyncio.Lock()
+        self.lock = AdmissionLock(store.engine)
+        name = config.replica_name or default_replica_name()
+        self.replicas = Replicas(store.transactions, name, config.replica_stale_after_s)
         self._launches: dict[str, asyncio.Task[None]] = {}
-        self.waits = WaitEstimates(store, config)
+        self.waits = WaitEstimates(store, config, lambda: self.pool.capacity)
 
     # --- lifecycle ------------------------------------------------------------------------
 
     async def start(self) -> None:
         """Sessions a previous run left live keep their place: the queued stay queued, a
         ready one whose server outlived the run (a cluster launcher's) keeps it, and the others
-        are queued again ahead of the queue, their counts kept. Every page gets a fresh
-        heartbeat allowance; servers no live session holds are stopped."""
+        are queued again ahead of the queue, their counts kept. Sessions another live replica
+        watches are its own. Every page gets a fresh heartbeat allowance; servers no live
+        session holds are stopped."""
         await self.store.save_campaigns(self.config.campaigns)
-        now, launcher = time.time(), self.pool.launcher
+        await self.replicas.beat()
+        others = await self.replicas.others_alive()
+        now = time.time()
         async with self.lock:
             for session in await self.store.live_sessions():
-                if session.state == "queued" or (
-                    session.state == "ready"
-                    and self.pool.attach(session.id, await reattach(launcher, session.id))
-                ):
-                    await self.store.update_session(session.id, last_heartbeat_at=now)
-                elif await self.store.requeue(
-                    session.id, "the coordinator restarted", count_restart=False
-                ):
-                    self.metrics.restarts.labels(cause="coordinator_restart").inc()
-            await stop_orphans(launcher, set(self.pool.slots))
+                if session.state != "queued" and session.replica in others:
+                    continue
+                await self.store.update_session(session.id, last_heartbeat_at=now)
+                if session.state != "queued":
+                    await self.take_over(session, "the coordinator restarted")
+            held = {s.id for s in await self.store.live_sessions() if s.state != "queued"}
+            await stop_orphans(self.pool.launcher, held)
             await self._admit()
         self.spares.fill(self.configs.spare_keys())
 
+    async def take_over(self, session: Session, why: str) -> bool:
+        """Watch `session`'s running server from this replica, or queue the session again
+        at its place (count kept) if its server cannot be taken back; whether it was. The
+        caller holds the lock."""
+        handle = await reattach(self.pool.launcher, session.id)
+        if session.state == "ready" and self.pool.attach(session.id, handle):
+            await self.store.update_session(session.id, replica=self.replicas.name)
+            await self.store.log("taken_over", session.id, replica=self.replicas.name)
+            return True
+        if handle is not None:  # a server that never became ready: nobody wants it
+            await self.pool.launcher.stop(handle, grace_s=0.0)
+        if await self.store.requeue(session.id, why, count_restart=False):
+            self.metrics.restarts.labels(cause="coordinator_restart").inc()
+        return False
+
     async def close(self) -> None:
-        """Stop every teleop server (each stores its running episode). The sessions stay as
-        they are in the database: the next start gives them back their places (`start`)."""
+        """Stop every teleop server (each stores its running episode); the sessions stay as
+        they are in the database, and the next start gives them back their places. With other
+        replicas alive and servers that outlive this process (a cluster's), the running
+        sessions are left to them instead: their workers keep driving."""
         for task in list(self._launches.values()):
             task.cancel()
         for task in list(self._launches.values()):
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await task
         await self.spares.close()
+        launcher = self.pool.launcher
+        others: set[str] = set()
+        with contextlib.suppress(Exception):  # the database may be gone too
+            others = await self.replicas.others_alive()
+        if others and isinstance(launcher, ReattachingLauncher):
+            log.info("leaving %d running sessions to %s", len(self.pool.slots), sorted(others))
+            for session_id, slot in list(self.pool.slots.items()):
+                if slot.handle is not None:
+                    launcher.release(slot.handle)
+                else:  # its launch was cancelled above
+                    await self.store.requeue(
+                        session_id, "its coordinator stopped", count_restart=False
+                    )
+            self.pool.slots.clear()
         await self.pool.close()
+        with contextlib.suppress(Exception):
+            await self.replicas.leave()
+
+    async def free_slots(self) -> int:
+        """Slots no session holds, counted in the database (every replica's sessions)."""
+        return max(0, self.pool.capacity - await self.store.held_slots())
 
     # --- sessions -------------------------------------------------------------------------
 
@@ -145,7 +187,7 @@ class Coordinator:
                     f"{open_here} sessions are already open from your network; finish or close "
                     "one first",
                 )
-        if self.pool.free > 0:
+        if await self.free_slots() > 0:
             return  # admitted at once: no queue to join
         live = await self.store.live_sessions()
         queued = sum(s.state == "queued" for s in live)
@@ -172,14 +214,27 @@ class Coordinator:
         async with self.lock:
             await self._admit()
 
+    async def admit_locked(self) -> None:
+        """`admit` for a caller that holds the lock already."""
+        await self._admit()
+
     async def _admit(self) -> None:
         """Give free slots to the oldest queued sessions (caller holds the lock)."""
-        if self.pool.free == 0:
+        free = await self.free_slots()
+        if free == 0:
             return
         queued = [s for s in await self.store.live_sessions() if s.state == "queued"]
-        for session in queued[: self.pool.free]:
+        for session in queued[:free]:
+            admitted = await self.store.update_session(
+                session.id,
+                only_if_state=("queued",),
+                state="starting",
+                admitted_at=time.time(),
+                replica=self.replicas.name,
+            )
+            if not admitted:  # gone meanwhile (its worker left through another replica)
+                continue
             self.pool.reserve(session.id)
-            await self.store.update_session(session.id, state="starting", admitted_at=time.time())
             await self.store.log("admitted", session.id, session.worker_id)
             task = asyncio.create_task(self._launch(session.id), name=f"launch-{session.id}")
             self._launches[session.id] = task
@@ -299,95 +354,6 @@ class Coordinator:
             session.id, only_if_state=("queued", "starting", "ready"), **fields
         )
 
-    # --- episodes -------------------------------------------------------------------------
-
-    async def report_episode(self, session: Session, report: EpisodeReport) -> EpisodeAck:
-        """Record the episode (once); the last required success completes the session."""
-        interface = report.device if report.device not in (None, "bot") else session.interface
-        new, done = await self.store.add_episode(
-            Episode(
-                episode_id=report.episode_id,
-                session_id=session.id,
-                worker_id=session.worker_id,
-                number=report.episode,
-                outcome=report.outcome,
-                steps=report.steps,
-                duration_s=report.duration_s,
-                uri=report.uri,
-                interface=interface,
-                task=session.task,
-                telemetry=report.telemetry,
-                created_at=time.time(),
-            )
-        )
-        if new:
-            self.metrics.episodes.labels(outcome=report.outcome).inc()
-        completed = False
-        if new and report.outcome == "success" and done >= session.demos_required:
-            campaign = self.config.campaign(session.campaign)
-            code = (campaign.prolific_completion_code if campaign else None) or (
-                new_completion_code()
-            )
-            # A short grace lets the page hear about the saved episode before the server goes.
-            completed = await self.end(
-                session.id, "completed", completion_code=code, stop_delay_s=2.0
-            )
-        return EpisodeAck(
-            episode_id=report.episode_id,
-            duplicate=not new,
-            demos_done=done,
-            demos_required=session.demos_required,
-            completed=completed,
-        )
-
-    # --- views ----------------------------------------------------------------------------
-
     async def queue_positions(self) -> dict[str, tuple[int, float]]:
         """Queued session id -> (1-based position, estimated wait in seconds)."""
         return await self.waits.positions()
-
-    async def view(self, session: Session, worker: Worker | None = None) -> SessionView:
-        position, eta = None, None
-        if session.state == "queued":
-            position, eta = (await self.queue_positions()).get(session.id, (None, None))
-        worker = worker or await self.store.worker(session.worker_id)
-        redirect = None
-        if session.completion_code and worker is not None and worker.source == "prolific":
-            redirect = PROLIFIC_COMPLETE + session.completion_code
-        time_left = None
-        if session.state == "ready" and session.ready_at is not None:
-            time_left = round(max(0.0, session.ready_at + session.time_limit_s - time.time()), 1)
-        return SessionView(
-            session_id=session.id,
-            state=session.state,
-            queue_position=position,
-            eta_s=eta,
-            task=session.task,
-            robot=session.robot,
-            controller=session.controller,
-            instruction=get_task(session.task).instruction,
-            interfaces=session.interfaces,
-            time_limit_s=session.time_limit_s,
-            time_left_s=time_left,
-            demos_done=session.demos_done,
-            demos_required=session.demos_required,
-            completion_code=session.completion_code,
-            redirect_url=redirect,
-            ice_servers=self.configs.ice_servers(session.id),
-            ice_transport_policy=self.config.ice_transport_policy,
-            ended_reason=session.ended_reason,
-            notice=_notice(session),
-            ready_at=session.ready_at,
-        )
-
-
-def _notice(session: Session) -> str | None:
-    """What the page says while a session that had a robot waits for a new one."""
-    requeued = session.queued_at is not None and session.queued_at > session.created_at
-    if session.state not in ("queued", "starting") or not requeued or not session.error:
-        return None
-    why = session.error[:1].upper() + session.error[1:]
-    done = session.demos_done
-    plural = "s" if done != 1 else ""
-    kept = f" Your {done} saved demonstration{plural} still count." if done else ""
-    return f"{why}: a new robot is on its way.{kept}"

@@ -188,6 +188,13 @@ class Store:
             )
             return list(rows)
 
+    async def held_slots(self) -> int:
+        """Sessions holding a teleop server slot (starting or ready), on every replica."""
+        async with self.transactions() as db:
+            statement = select(func.count()).select_from(Session)
+            held = statement.where(Session.state.in_(("starting", "ready")))
+            return await db.scalar(held) or 0
+
     async def live_sessions_of_client(self, client_tag: str) -> int:
         async with self.transactions() as db:
             statement = select(func.count()).select_from(Session)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from sqlalchemy import JSON, Float, ForeignKey, Integer, String, Text, UniqueConstraint
+from sqlalchemy import JSON, Float, ForeignKey, Index, Integer, String, Text, UniqueConstraint
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 
@@ -83,6 +83,8 @@ class Session(Base):
     # coordinator's secret (coord/session_keys.py). The report token is stored hashed.
     report_token_hash: Mapped[str] = mapped_column(String(64), index=True)
     error: Mapped[str | None] = mapped_column(Text)
+    # The coordinator replica that launched (or took over) its teleop server and watches it.
+    replica: Mapped[str | None] = mapped_column(String(128), index=True, default=None)
 
 
 class Episode(Base):
@@ -139,3 +141,25 @@ class Event(Base):
     session_id: Mapped[str | None] = mapped_column(String(40), index=True)
     worker_id: Mapped[str | None] = mapped_column(String(40))
     data: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class Replica(Base):
+    """A coordinator serving this database, and when it last said so (coord/replicas.py)."""
+
+    __tablename__ = "replicas"
+
+    name: Mapped[str] = mapped_column(String(128), primary_key=True)
+    started_at: Mapped[float] = mapped_column(Float)
+    seen_at: Mapped[float] = mapped_column(Float)
+
+
+class LimitEvent(Base):
+    """One counted event of a rate limit every replica shares (wrong pairing codes)."""
+
+    __tablename__ = "limit_events"
+    __table_args__ = (Index("ix_limit_events_limiter_key_at", "limiter", "key", "at"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    limiter: Mapped[str] = mapped_column(String(32))
+    key: Mapped[str] = mapped_column(String(128))
+    at: Mapped[float] = mapped_column(Float, index=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 from crowdteleop.coord.config import CoordConfig
 from crowdteleop.coord.queue import expected_remaining_s, mean_session_s, queue_etas
@@ -15,8 +16,9 @@ MEAN_CACHE_S = 10.0
 class WaitEstimates:
     """Queue positions and estimated waits (the mean session length cached for a while)."""
 
-    def __init__(self, store: Store, config: CoordConfig) -> None:
-        self.store, self.config = store, config
+    def __init__(self, store: Store, config: CoordConfig, capacity: Callable[[], int]) -> None:
+        """`capacity`: the pool's now (a cluster's changes as nodes come and go)."""
+        self.store, self.config, self.capacity = store, config, capacity
         self._mean: tuple[float, float] | None = None  # (computed at, value)
 
     def forget_mean(self) -> None:
@@ -51,4 +53,4 @@ class WaitEstimates:
             for s in live
             if s.state in ("starting", "ready")
         ]
-        return queue_etas(self.config.capacity, remaining, waiting, mean)
+        return queue_etas(max(1, self.capacity()), remaining, waiting, mean)

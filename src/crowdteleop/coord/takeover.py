@@ -1,0 +1,73 @@
+"""Replicas keep each other's sessions going (run at every reaper sweep).
+
+- `adopt`: a session whose replica stopped (its row gone) or went silent for
+  `replica_stale_after_s` (killed, or cut off from the database) is taken over by this one:
+  its running server is watched from here, or, if it cannot be taken back, the session is
+  queued again at its place with its count kept.
+- `reconcile`: a session this replica watches may have been ended by another (its worker
+  left through the other one, or finished there): its server is stopped here. One taken over
+  by another replica is let go without stopping its server.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from crowdteleop.coord.service import Coordinator
+from crowdteleop.coord.shared_limits import forget_old
+
+log = logging.getLogger(__name__)
+
+
+async def adopt(coordinator: Coordinator) -> list[str]:
+    """Take over the sessions no live replica watches; returns their ids."""
+    replicas = coordinator.replicas
+    await replicas.beat()
+    alive = await replicas.alive()
+    orphaned = [
+        s
+        for s in await coordinator.store.live_sessions()
+        if s.state != "queued" and s.replica not in alive
+    ]
+    if not orphaned:
+        return []
+    adopted = []
+    async with coordinator.lock:
+        alive = await replicas.alive()
+        for stale in orphaned:
+            session = await coordinator.store.session(stale.id)  # again, under the lock
+            if session is None or session.state not in ("starting", "ready"):
+                continue
+            if session.replica in alive:
+                continue  # another replica took it meanwhile
+            log.warning("session %s: replica %s is gone; taking over", session.id, session.replica)
+            await coordinator.take_over(session, "the coordinator serving it stopped")
+            adopted.append(session.id)
+        await coordinator.admit_locked()
+    return adopted
+
+
+async def reconcile(coordinator: Coordinator) -> None:
+    """Let go of the servers of sessions this replica no longer holds."""
+    pool, name = coordinator.pool, coordinator.replicas.name
+    async with coordinator.lock:
+        for session_id, slot in list(pool.slots.items()):
+            if slot.handle is None:
+                continue  # starting here: its launch decides
+            session = await coordinator.store.session(session_id)
+            held = session is not None and session.state in ("starting", "ready")
+            if held and session is not None and session.replica == name:
+                continue
+            if held:  # another replica watches it now: its server keeps running
+                pool.forget(session_id)
+                log.info("session %s: now watched by %s", session_id, session and session.replica)
+            else:
+                pool.release(session_id)
+                log.info("session %s ended elsewhere: its server stops", session_id)
+
+
+async def sweep_shared_state(coordinator: Coordinator) -> None:
+    await adopt(coordinator)
+    await reconcile(coordinator)
+    window_s = 60.0  # the shared limits' window (coord/guards.py)
+    await forget_old(coordinator.store.transactions, window_s)
