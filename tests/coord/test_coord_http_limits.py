@@ -179,3 +179,29 @@ def _status_within(url: str, status: int, limit_s: float) -> bool:
             return True
         time.sleep(0.1)
     return False
+
+
+def test_connections_to_the_coordinators_listener_send_without_waiting_for_acks():
+    """Nagle off (TCP_NODELAY) on every accepted connection: with it on, each request on a
+    kept-alive connection waited ~40 ms for the client's delayed ACK (benchmarks/coord_http.py)."""
+    from crowdteleop.coord.http_limits import listening_socket
+
+    async def accepted_nodelay() -> int:
+        seen: asyncio.Future[int] = asyncio.get_running_loop().create_future()
+
+        def on_connection(_reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            sock = writer.get_extra_info("socket")
+            seen.set_result(sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY))
+            writer.close()
+
+        listener = listening_socket("127.0.0.1", 0)
+        server = await asyncio.start_server(on_connection, sock=listener)
+        _reader, writer = await asyncio.open_connection(*listener.getsockname())
+        try:
+            return await asyncio.wait_for(seen, 5)
+        finally:
+            writer.close()
+            server.close()
+            await server.wait_closed()
+
+    assert asyncio.run(accepted_nodelay()) != 0

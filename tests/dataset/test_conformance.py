@@ -15,10 +15,11 @@ from typer.testing import CliRunner
 from crowdteleop.cli import app
 from crowdteleop.client.bot import Bot
 from crowdteleop.client.connection import TeleopClient
-from crowdteleop.dataset.build import build_dataset, network_of
+from crowdteleop.dataset.build import build_dataset
 from crowdteleop.dataset.check import STOCK_LOW_DIM, check_dataset
 from crowdteleop.dataset.replay import ReplayChecker, load_demo
 from crowdteleop.dataset.robosuite_replay import play_states_in_robosuite
+from crowdteleop.dataset.summary import network_of
 from tests.fixtures.teleop_process import ADMIN_TOKEN, TOKEN, run, teleop_server
 
 runner = CliRunner()

@@ -21,6 +21,7 @@ from crowdteleop.coord.schemas import (
 )
 from crowdteleop.coord.stats import completion_times, per_hour
 from crowdteleop.coord.tables import Session
+from crowdteleop.recording.metadata import RegionChoice
 
 ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorBody} for code in (401, 404, 409, 422, 429)
@@ -47,7 +48,16 @@ def _summary(session: Session, now: float, position: int | None) -> SessionSumma
         ready_at=session.ready_at,
         last_heartbeat_s_ago=round(now - session.last_heartbeat_at, 1),
         teleop_url=session.teleop_url,
+        rtt_ms=_round_trip_here_ms(session),
     )
+
+
+def _round_trip_here_ms(session: Session) -> float | None:
+    """The worker's round trip to this region, as their join page measured it."""
+    if session.region is None:
+        return None
+    choice = RegionChoice.model_validate(session.region)
+    return choice.rtts_ms.get(choice.region)
 
 
 @router.get("/overview", response_model=AdminOverview)

@@ -6,6 +6,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Path, Query, Request
 
+from crowdteleop.coord.api_regions import region_choice
 from crowdteleop.coord.campaign import NAME_PATTERN, CampaignConfig
 from crowdteleop.coord.deps import (
     ClientDep,
@@ -28,6 +29,7 @@ from crowdteleop.coord.schemas import (
     JoinRequest,
     JoinResponse,
     OfferBody,
+    RegionView,
     SessionView,
 )
 from crowdteleop.coord.store import SessionInUseError
@@ -50,6 +52,7 @@ def campaign_view(campaign: CampaignConfig) -> CampaignView:
         interfaces=campaign.interfaces,
         demos_required=campaign.demos_required,
         time_limit_s=campaign.time_limit_s,
+        regions=[RegionView(name=r.name, url=str(r.url)) for r in campaign.regions],
     )
 
 
@@ -66,7 +69,12 @@ async def campaign(
         raise ApiError(404, "unknown_campaign", f"no campaign named {name!r}")
     typical = await coordinator.waits.mean_session_s(-1.0)
     view = campaign_view(chosen)
-    return view.model_copy(update={"typical_session_s": round(typical) if typical > 0 else None})
+    return view.model_copy(
+        update={
+            "typical_session_s": round(typical) if typical > 0 else None,
+            "region": coordinator.config.region,
+        }
+    )
 
 
 @router.post("/join", response_model=JoinResponse)
@@ -90,6 +98,11 @@ async def join(
             "this study is open to its participants only: please use the link your study "
             "platform (Prolific or MTurk) gave you",
         )
+    try:
+        region = region_choice(coordinator.config, campaign, body.region_rtts_ms)
+    except ApiError:
+        guards.metrics.refused("unknown_region")
+        raise
     guards.admit_join(client)
     try:
         worker, token, _created = await coordinator.store.join(
@@ -110,6 +123,9 @@ async def join(
             "Your session is open in another browser. Continue there, or take it over here "
             "(the other one will stop).",
         ) from exc
+    if region is not None or worker.region is not None:
+        choice = region.model_dump() if region is not None else None
+        await coordinator.store.set_worker_region(worker.id, choice)
     guards.metrics.joins.labels(source=who.source).inc()
     return JoinResponse(
         worker_id=worker.id,

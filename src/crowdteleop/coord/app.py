@@ -13,7 +13,14 @@ import aiohttp
 from fastapi import Depends, FastAPI, Request
 from fastapi.responses import Response
 
-from crowdteleop.coord import api_admin, api_internal, api_pairing, api_sessions, pages
+from crowdteleop.coord import (
+    api_admin,
+    api_internal,
+    api_pairing,
+    api_regions,
+    api_sessions,
+    pages,
+)
 from crowdteleop.coord.cluster import follow_cluster
 from crowdteleop.coord.config import CoordConfig
 from crowdteleop.coord.db import make_engine, migrate
@@ -95,9 +102,12 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
     app.add_middleware(BodyTimeoutMiddleware, timeout_s=config.body_timeout_s)  # bounds its read
     # Outermost, so even the body limit's 413 carries the headers.
     docs_pages = ("/docs", "/docs/oauth2-redirect", "/redoc") if config.api_docs else ()
-    app.add_middleware(SecurityHeadersMiddleware, docs_paths=docs_pages)
+    app.add_middleware(
+        SecurityHeadersMiddleware, docs_paths=docs_pages, connect_origins=config.region_origins()
+    )
     install_error_handlers(app)
     app.include_router(api_sessions.router)
+    app.include_router(api_regions.router)
     app.include_router(api_pairing.router)
     app.include_router(api_admin.router)
     app.include_router(api_internal.router)

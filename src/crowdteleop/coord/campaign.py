@@ -7,8 +7,9 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import AnyHttpUrl, BaseModel, ConfigDict, Field, field_validator
 
+from crowdteleop.recording.metadata import RegionName
 from crowdteleop.tasks import TASKS
 from crowdteleop.vocab import WORKER_DEVICES, ControllerName, WorkerDevice
 
@@ -17,6 +18,21 @@ NAME_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
 
 def _default_controllers() -> list[ControllerName]:
     return ["ik-velocity"]
+
+
+class Region(BaseModel):
+    """One place serving a campaign: a coordinator with its own cluster, at its public URL."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: RegionName
+    url: AnyHttpUrl = Field(description="its coordinator's public URL (its join page is `/`)")
+
+    @property
+    def origin(self) -> str:
+        """scheme://host[:port], as a browser's Origin and a CSP source name it."""
+        port = f":{self.url.port}" if self.url.port not in (None, 80, 443) else ""
+        return f"{self.url.scheme}://{self.url.host}{port}"
 
 
 class CampaignConfig(BaseModel):
@@ -58,6 +74,22 @@ class CampaignConfig(BaseModel):
         pattern=r"^[A-Za-z0-9]{4,32}$",
         description="the study's code on Prolific; a random code per session when unset",
     )
+
+    regions: list[Region] = Field(
+        default_factory=list,
+        max_length=16,
+        description="the regions serving this campaign (the coordinator's own `region` among "
+        "them): the join page measures the worker's round trip to each and sends them to the "
+        "nearest with a free robot (docs/deploy.md); empty: this coordinator alone",
+    )
+
+    @field_validator("regions")
+    @classmethod
+    def _distinct_regions(cls, regions: list[Region]) -> list[Region]:
+        names = [region.name for region in regions]
+        if len(set(names)) != len(names):
+            raise ValueError(f"region names must be unique, got {names}")
+        return regions
 
     @field_validator("tasks")
     @classmethod

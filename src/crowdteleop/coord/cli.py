@@ -115,14 +115,12 @@ def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFil
     """The config, the bound listening sockets (public, then internal if any), TLS files."""
     from crowdteleop.coord.campaign import load_campaigns
     from crowdteleop.coord.config import CoordConfig
+    from crowdteleop.coord.http_limits import listening_socket
     from crowdteleop.coord.private import private_dir
     from crowdteleop.coord.replicas import default_replica_name
     from crowdteleop.coord.tls import local_names, self_signed
 
-    family = socket.AF_INET6 if ":" in o.host else socket.AF_INET
-    main = socket.socket(family, socket.SOCK_STREAM)
-    main.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    main.bind((o.host, o.port))
+    main = listening_socket(o.host, o.port)
     bound = main.getsockname()[1]
     scheme = "https" if o.https else "http"
     shown = o.host
@@ -144,8 +142,7 @@ def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFil
         else:
             raise ValueError("--cert and --key go together")
         # Teleop servers report over plain HTTP on loopback (no certificate to trust).
-        side = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        side.bind(("127.0.0.1", 0))
+        side = listening_socket("127.0.0.1", 0)
         internal = f"http://127.0.0.1:{side.getsockname()[1]}"
         sockets.append(side)
     fields: dict[str, Any] = {

@@ -12,6 +12,7 @@ from crowdteleop.coord.clients import ProxyTrust
 from crowdteleop.coord.ray_launcher import RayLauncherConfig
 from crowdteleop.coord.security import ADMIN_TOKEN_MIN_BITS, estimated_entropy_bits
 from crowdteleop.coord.turn import TurnConfig
+from crowdteleop.recording.metadata import RegionName
 from crowdteleop.teleop.ice import IceServer, IceTransportPolicy
 
 
@@ -94,6 +95,11 @@ class CoordConfig(BaseModel):
     replica_stale_after_s: float = Field(
         10.0, gt=0, description="a replica silent this long is gone: others take its sessions"
     )
+    region: RegionName | None = Field(
+        None,
+        description="this coordinator's name in its campaigns' `regions` (needed when one "
+        "lists regions): recorded with every episode of its workers",
+    )
     teleop_start_timeout_s: float = Field(120.0, gt=0)
     pairing_ttl_s: float = Field(120.0, gt=0)
     pair_failures_per_minute: int = Field(
@@ -165,6 +171,22 @@ class CoordConfig(BaseModel):
         if not names or len(set(names)) != len(names):
             raise ValueError(f"need at least one campaign, with unique names, got {names}")
         return self
+
+    @model_validator(mode="after")
+    def _region_listed(self) -> CoordConfig:
+        for campaign in self.campaigns:
+            names = [region.name for region in campaign.regions]
+            if names and self.region not in names:
+                raise ValueError(
+                    f"campaign {campaign.name!r} lists regions {names}: set `region` to this "
+                    f"coordinator's name among them (it is {self.region!r})"
+                )
+        return self
+
+    def region_origins(self) -> list[str]:
+        """Every region's origin: the pages may fetch their /api/ping (CSP connect-src)."""
+        origins = {region.origin for c in self.campaigns for region in c.regions}
+        return sorted(origins)
 
     @property
     def default_campaign(self) -> CampaignConfig:

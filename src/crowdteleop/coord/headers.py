@@ -1,7 +1,8 @@
 """Security headers on every response: what a browser may load, frame, sniff and refer.
 
 The pages (crowdteleop/web/static) are ES modules and a stylesheet from /static, fetch only
-their own origin (the API, /protocol.json, /qr.svg) and get video as a WebRTC MediaStream
+their own origin (the API, /protocol.json, /qr.svg; the join page also pings the campaign's
+other regions, whose origins `connect-src` then lists) and get video as a WebRTC MediaStream
 (`srcObject`, which no fetch directive governs). Their one inline part is style: phone.html's
 `<style>` block and a few `style=""` attributes, hence `'unsafe-inline'` for styles only.
 """
@@ -51,23 +52,32 @@ COMMON_HEADERS: Mapping[str, str] = {
 }
 
 
-def security_headers(path: str = "", docs_paths: Iterable[str] = ()) -> dict[str, str]:
-    """The headers a response to `path` gets (the docs' own policy on `docs_paths`)."""
+def security_headers(
+    path: str = "", docs_paths: Iterable[str] = (), connect_origins: Iterable[str] = ()
+) -> dict[str, str]:
+    """The headers a response to `path` gets (the docs' own policy on `docs_paths`); pages
+    may also fetch from `connect_origins` (the campaigns' regions)."""
     policy = DOCS_POLICY if path in docs_paths else PAGE_POLICY
+    extra = " ".join(connect_origins)
+    if extra and policy is PAGE_POLICY:
+        policy = policy.replace("connect-src 'self'", f"connect-src 'self' {extra}")
     return {"Content-Security-Policy": policy, **COMMON_HEADERS}
 
 
 class SecurityHeadersMiddleware:
     """Adds `security_headers` to every HTTP response that does not set them itself."""
 
-    def __init__(self, app: ASGIApp, docs_paths: Iterable[str] = ()) -> None:
+    def __init__(
+        self, app: ASGIApp, docs_paths: Iterable[str] = (), connect_origins: Iterable[str] = ()
+    ) -> None:
         self.app, self.docs_paths = app, frozenset(docs_paths)
+        self.connect_origins = tuple(connect_origins)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        extra = security_headers(scope.get("path", ""), self.docs_paths)
+        extra = security_headers(scope.get("path", ""), self.docs_paths, self.connect_origins)
 
         async def send_with_headers(message: Message) -> None:
             if message["type"] == "http.response.start":

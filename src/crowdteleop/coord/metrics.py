@@ -20,6 +20,7 @@ Refusal = Literal[
     "wait_too_long",  # the estimated wait is past max_wait_s
     "sessions_per_address",  # live sessions from one address past live_sessions_per_address
     "in_use",  # another browser holds the worker's live session
+    "unknown_region",  # a join's round trips name a region its campaign does not list
     "pair_bad_code",  # a wrong, used or expired pairing code
     "pair_rate_address",  # wrong codes from one address past pair_failures_per_minute
     "pair_rate_total",  # wrong codes from everyone past pair_failures_per_minute_total

@@ -6,6 +6,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from crowdteleop.recording.metadata import RegionName, RoundTripMs
 from crowdteleop.teleop.ice import IceServer, IceTransportPolicy
 from crowdteleop.vocab import Outcome, WorkerDevice
 
@@ -38,6 +39,12 @@ class JoinRequest(Strict):
         False,
         description="move the worker's live session here from another browser (it is told)",
     )
+    region_rtts_ms: dict[RegionName, RoundTripMs] | None = Field(
+        None,
+        max_length=16,
+        description="the round trips the join page measured to the campaign's regions (the "
+        "nearest with a free robot sent the worker here): recorded with their episodes",
+    )
 
     @field_validator("params")
     @classmethod
@@ -48,6 +55,20 @@ class JoinRequest(Strict):
             if len(key) > 64 or len(value) > 256:
                 raise ValueError("parameter names are at most 64 characters, values 256")
         return params
+
+
+class RegionView(BaseModel):
+    name: str
+    url: str = Field(description="its coordinator's public URL: its /api/ping, its join page")
+
+
+class PingView(BaseModel):
+    """How free a region is, from `GET /api/ping` (its round trip is the other half)."""
+
+    region: str | None = Field(description="this coordinator's region; null without regions")
+    capacity: int = Field(description="robots this region runs at once")
+    free_slots: int = Field(description="robots free now")
+    queued: int = Field(description="workers waiting for one")
 
 
 class CampaignView(BaseModel):
@@ -61,6 +82,10 @@ class CampaignView(BaseModel):
     typical_session_s: float | None = Field(
         None, description="how long sessions have taken (mean of recent ones); null before any"
     )
+    regions: list[RegionView] = Field(
+        default_factory=list, description="where the campaign is served; empty: here alone"
+    )
+    region: str | None = Field(None, description="the region this coordinator is")
 
 
 class JoinResponse(BaseModel):
@@ -180,6 +205,9 @@ class SessionSummary(BaseModel):
     ready_at: float | None
     last_heartbeat_s_ago: float
     teleop_url: str | None
+    rtt_ms: float | None = Field(
+        None, description="the worker's round trip to this region, as their join page measured"
+    )
 
 
 class TeleopServerView(BaseModel):

@@ -166,6 +166,7 @@ class Coordinator:
                     queued_at=now,
                     restarts=0,
                     client_tag=client_tag,
+                    region=worker.region,
                     last_heartbeat_at=now,
                     report_token_hash="",
                 )

@@ -17,6 +17,8 @@ from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 
 from crowdteleop.coord.tables import LimitEvent
 
+SHARED_WINDOW_S = 60.0  # every shared limit counts per minute; older events are deleted
+
 
 @dataclass(frozen=True)
 class SharedWindowLimiter:
@@ -25,7 +27,7 @@ class SharedWindowLimiter:
     transactions: async_sessionmaker[AsyncSession]
     name: str  # which limit: rows of different limiters never mix
     limit: int
-    window_s: float = 60.0
+    window_s: float = SHARED_WINDOW_S
 
     async def wait_s(self, key: str, now: float | None = None) -> float:
         """Seconds until `key` may have another event (0: now)."""

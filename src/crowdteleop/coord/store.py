@@ -146,6 +146,11 @@ class Store:
 
     # --- sessions -------------------------------------------------------------------------
 
+    async def set_worker_region(self, worker_id: str, region: dict[str, Any] | None) -> None:
+        """Where the worker's latest join landed (their next session records it)."""
+        async with self.transactions.begin() as db:
+            await db.execute(update(Worker).where(Worker.id == worker_id).values(region=region))
+
     async def add_session(self, session: Session) -> Session:
         async with self.transactions.begin() as db:
             db.add(session)
@@ -163,6 +168,12 @@ class Store:
     async def session(self, session_id: str) -> Session | None:
         async with self.transactions() as db:
             return await db.get(Session, session_id)
+
+    async def sessions_by_id(self, session_ids: Iterable[str]) -> dict[str, Session]:
+        """Those of `session_ids` that exist, in one query."""
+        async with self.transactions() as db:
+            rows = await db.scalars(select(Session).where(Session.id.in_(list(session_ids))))
+            return {session.id: session for session in rows}
 
     async def session_by_report_token(self, token: str) -> Session | None:
         async with self.transactions() as db:

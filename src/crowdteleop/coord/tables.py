@@ -34,6 +34,8 @@ class Worker(Base):
     campaign: Mapped[str] = mapped_column(String(64))
     params: Mapped[dict[str, Any]] = mapped_column(JSON)
     created_at: Mapped[float] = mapped_column(Float)
+    # The region their last join landed in and the round trips that chose it (a RegionChoice).
+    region: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
 
 
 class WorkerToken(Base):
@@ -85,6 +87,8 @@ class Session(Base):
     error: Mapped[str | None] = mapped_column(Text)
     # The coordinator replica that launched (or took over) its teleop server and watches it.
     replica: Mapped[str | None] = mapped_column(String(128), index=True, default=None)
+    # The worker's region choice when the session began (a RegionChoice): its episodes carry it.
+    region: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
 
 
 class Episode(Base):

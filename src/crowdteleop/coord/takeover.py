@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 
 from crowdteleop.coord.service import Coordinator
-from crowdteleop.coord.shared_limits import forget_old
+from crowdteleop.coord.shared_limits import SHARED_WINDOW_S, forget_old
 
 log = logging.getLogger(__name__)
 
@@ -51,10 +51,12 @@ async def reconcile(coordinator: Coordinator) -> None:
     """Let go of the servers of sessions this replica no longer holds."""
     pool, name = coordinator.pool, coordinator.replicas.name
     async with coordinator.lock:
-        for session_id, slot in list(pool.slots.items()):
-            if slot.handle is None:
-                continue  # starting here: its launch decides
-            session = await coordinator.store.session(session_id)
+        watched = [sid for sid, slot in pool.slots.items() if slot.handle is not None]
+        if not watched:  # (one starting here has no handle yet: its launch decides)
+            return
+        sessions = await coordinator.store.sessions_by_id(watched)
+        for session_id in watched:
+            session = sessions.get(session_id)
             held = session is not None and session.state in ("starting", "ready")
             if held and session is not None and session.replica == name:
                 continue
@@ -69,5 +71,4 @@ async def reconcile(coordinator: Coordinator) -> None:
 async def sweep_shared_state(coordinator: Coordinator) -> None:
     await adopt(coordinator)
     await reconcile(coordinator)
-    window_s = 60.0  # the shared limits' window (coord/guards.py)
-    await forget_old(coordinator.store.transactions, window_s)
+    await forget_old(coordinator.store.transactions, SHARED_WINDOW_S)

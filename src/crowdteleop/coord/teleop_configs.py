@@ -40,6 +40,7 @@ def assignment_of(config: TeleopConfig) -> Assignment:
         report_token=config.report_token,
         ice_servers=list(config.ice_servers),
         practice_s=config.practice_s,
+        region=config.region,
     )
 
 
@@ -77,6 +78,7 @@ class TeleopConfigs:
                 "report_url": f"{self.config.report_base_url}/internal/episodes",
                 "report_token": report_token,
                 "practice_s": self._practice_s(session.campaign),
+                "region": session.region,
             },
         )
         return TeleopConfig.model_validate(fields)

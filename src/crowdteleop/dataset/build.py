@@ -6,7 +6,7 @@ Layout (robosuite's demo.hdf5 as extended by robomimic; docs/dataset.md): ``data
 ``--obs``), ``actions_abs`` (absolute end-effector targets), ``controller_states`` and attrs
 ``model_file``, ``num_samples``, plus our metadata as attributes; ``mask/<filter key>``
 lists of demo names: ``train`` / ``valid`` (90/10, seeded), ``interface_<x>``,
-``worker_<x>``, ``network_<x>``, ``fastest_<N>``, ``replay_ok``.
+``worker_<x>``, ``network_<x>``, ``region_<x>``, ``fastest_<N>``, ``replay_ok``.
 
 Every input is read and checked before anything is written, and the output appears under its
 name only when whole (temporary file, fsync, rename): a bad input leaves an existing dataset
@@ -19,7 +19,6 @@ import json
 import os
 import random
 import time
-from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +37,7 @@ from crowdteleop.dataset.observations import (
     parse_obs,
     write_demo_pass,
 )
+from crowdteleop.dataset.summary import summarize
 from crowdteleop.recording.episode_file import DEMO, CorruptEpisodeError, Episode, read_episode
 from crowdteleop.recording.metadata import EpisodeMetadata
 from crowdteleop.recording.storage import fsync_directory
@@ -58,12 +58,6 @@ DEFAULT_DRIFT_TOLERANCE = 1e-6  # max |state error| of action replay in the reco
 
 
 DEFAULT_OBS = parse_obs([LOW_DIM])
-# The paper's conditions (Sec. 4.3): 2.4 Mbps vs 500 kbps, 20 ms vs 120 ms one way.
-LOW_CAPACITY_KBPS = 1000.0
-HIGH_DELAY_RTT_MS = 150.0
-LOSSY_FRACTION = 0.02
-QUEUE_MS = 50.0  # median minus minimum round trip: a bottleneck's queue
-CONGESTED_LOSS = 0.005
 
 
 @dataclass
@@ -87,65 +81,6 @@ class BuildReport:
     skipped: list[tuple[str, str]] = field(default_factory=list)  # (input, why)
     flagged: list[str] = field(default_factory=list)  # demos whose action replay diverged
     seconds: float = 0.0
-
-
-def interface_of(episode: Episode) -> str:
-    """The interface the worker used: as recorded, else the devices that sent commands."""
-    named = EpisodeMetadata.model_validate(episode.metadata).interface
-    if named:
-        return named
-    devices = Counter(device for c in episode.commands if (device := c.get("device")))
-    return devices.most_common(1)[0][0] if devices else "unknown"
-
-
-def network_of(metadata: dict[str, Any]) -> str:
-    """The network condition: a label the campaign set, else one read off what was measured on
-    the link (the paper's four: baseline, low-capacity, high-delay, both; "+lossy" past 2 %
-    loss), else "unknown".
-
-    Delay is the link's own: the smallest data-channel round trip of the episode (a queue adds
-    to the median, not to the minimum). Capacity is low when the receiver's bandwidth estimate
-    (its REMB, ``receiver_kbps``) is under 1 Mbps *and* the link shows it is the bottleneck: a
-    queue (median round trip 50 ms above the minimum) or loss. An estimate alone says little:
-    receivers ramp it up from what arrives, and aiortc starts every stream at 500 kbps, on
-    loopback too; the encoder's own rate is never used."""
-    named = metadata.get("network_condition")
-    if isinstance(named, str) and named:
-        return named
-    telemetry = metadata.get("telemetry") or {}
-    rtt = telemetry.get("rtt_ms") or telemetry.get("rtcp_rtt_ms")
-    base_rtt = telemetry.get("rtt_min_ms") or rtt
-    estimate = telemetry.get("receiver_kbps")
-    if not rtt and not estimate:
-        return "unknown"
-    loss = telemetry.get("loss_fraction") or 0.0
-    queued = bool(rtt and base_rtt and rtt - base_rtt >= QUEUE_MS)
-    slow = bool(estimate and estimate < LOW_CAPACITY_KBPS and (queued or loss >= CONGESTED_LOSS))
-    late = bool(base_rtt and base_rtt >= HIGH_DELAY_RTT_MS)
-    label = {
-        (False, False): "baseline",
-        (True, False): "low-capacity",
-        (False, True): "high-delay",
-        (True, True): "both",
-    }[(slow, late)]
-    return f"{label}+lossy" if loss >= LOSSY_FRACTION else label
-
-
-def summarize(name: str, episode: Episode, drift: float | None = None) -> DemoSummary:
-    info = EpisodeMetadata.model_validate(episode.metadata)
-    return DemoSummary(
-        name=name,
-        episode_id=episode.episode_id,
-        task=info.task,
-        outcome=episode.outcome,
-        interface=interface_of(episode),
-        worker=info.worker_id or "unknown",
-        network=network_of(episode.metadata),
-        campaign=str(episode.metadata.get("campaign") or ""),
-        steps=episode.steps,
-        completion_s=episode.steps / info.control_hz,
-        drift=drift,
-    )
 
 
 def read_inputs(
@@ -335,6 +270,7 @@ def _write_demos(
             worker=demo.worker,
             campaign=demo.campaign,
             network_condition=demo.network,
+            region=demo.region,
             telemetry=json.dumps(episode.metadata.get("telemetry") or {}),
             completion_time_s=demo.completion_s,
             created_at=episode.created_at,
@@ -382,6 +318,7 @@ def _write_masks(
         ("interface", "interface"),
         ("worker", "worker"),
         ("network", "network"),
+        ("region", "region"),
     ):
         for demo in demos:
             masks.setdefault(f"{label}_{_safe(getattr(demo, attribute))}", []).append(demo.name)

@@ -208,9 +208,10 @@ def stats(
     bins: Annotated[int, typer.Option(help="histogram bins")] = 10,
 ) -> None:
     """Counts, hours, success rates, completion times and KS tests, as the paper's tables."""
-    from crowdteleop.dataset.build import episode_files, read_inputs, summarize
+    from crowdteleop.dataset.build import episode_files, read_inputs
     from crowdteleop.dataset.files import dataset_demos
     from crowdteleop.dataset.stats import markdown, write_report
+    from crowdteleop.dataset.summary import summarize
 
     with clear_errors():
         demos = []

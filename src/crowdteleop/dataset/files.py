@@ -11,6 +11,7 @@ import h5py
 from crowdteleop.errors import CrowdteleopError
 
 DATASET_FORMAT = "crowdteleop-dataset"
+NO_REGION = "none"  # the region of a demo whose campaign had none (or of an older dataset)
 
 
 class DatasetError(CrowdteleopError, ValueError):
@@ -32,6 +33,7 @@ class DemoSummary:
     steps: int
     completion_s: float
     drift: float | None = None
+    region: str = NO_REGION
 
 
 def open_dataset(path: Path) -> h5py.File:
@@ -68,6 +70,7 @@ def dataset_demos(path: Path) -> list[DemoSummary]:
                     steps=int(attrs["num_samples"]),
                     completion_s=float(attrs["completion_time_s"]),
                     drift=None if drift < 0 else drift,
+                    region=str(attrs.get("region", NO_REGION)),
                 )
             )
         return summaries

@@ -1,6 +1,6 @@
 """``crowdteleop dataset stats``: the paper's tables for a dataset.
 
-Per task, and within it per interface, network condition and worker: count, hours of
+Per task, and within it per interface, network condition, region and worker: count, hours of
 trajectories, success rate, completion time mean / standard deviation / histogram (successful
 demos, as the paper's tables), and the two-sample Kolmogorov-Smirnov statistic with its p-value
 between every pair of groups (scipy), laid out like the paper's Tables 3-7 ("Mean | Standard
@@ -19,9 +19,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from crowdteleop.dataset.files import DemoSummary
+from crowdteleop.dataset.files import NO_REGION, DemoSummary
 
-GROUPINGS = {"interface": "interface", "network condition": "network", "worker": "worker"}
+GROUPINGS = {
+    "interface": "interface",
+    "network condition": "network",
+    "region": "region",
+    "worker": "worker",
+}
 
 
 @dataclass(frozen=True)
@@ -86,6 +91,8 @@ def compute_stats(demos: Sequence[DemoSummary], bins: int = 10) -> dict[str, Any
         entry: dict[str, Any] = {"all": asdict(group_stats(task, in_task, edges)), "by": {}}
         for title, attribute in GROUPINGS.items():
             names = sorted({getattr(d, attribute) for d in in_task})
+            if attribute == "region" and names == [NO_REGION]:
+                continue  # a campaign without regions: no table of one row
             members = {n: [d for d in in_task if getattr(d, attribute) == n] for n in names}
             samples = {
                 n: [d.completion_s for d in m if d.outcome == "success"] for n, m in members.items()

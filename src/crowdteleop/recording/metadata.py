@@ -8,13 +8,31 @@ Fields have defaults so files recorded before a field existed still read.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
 from crowdteleop.vocab import ActionMode, ControllerName
 
 DEFAULT_CONTROL_HZ = 20.0
+REGION_NAME_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,31}$"
+RegionName = Annotated[str, StringConstraints(pattern=REGION_NAME_PATTERN)]
+RoundTripMs = Annotated[float, Field(ge=0, le=60_000, allow_inf_nan=False)]
+
+
+class RegionChoice(BaseModel):
+    """Where a worker was sent among a campaign's regions (each a coordinator with its own
+    cluster), and the round trips their join page measured to each, which decided it: the
+    paper's Oregon-vs-China comparison, kept with every episode."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    region: RegionName = Field(description="the region whose teleop server recorded this")
+    rtts_ms: dict[RegionName, RoundTripMs] = Field(
+        default_factory=dict,
+        max_length=16,
+        description="the worker's measured round trip to each region it could reach",
+    )
 
 
 class EnvArgs(BaseModel):
@@ -45,6 +63,7 @@ class EpisodeMetadata(BaseModel):
     env_args: EnvArgs | None = None
     episode: int | None = Field(None, description="1-based number within its session")
     interface: str | None = Field(None, description="the device the worker used, if known")
+    region: RegionChoice | None = Field(None, description="none where a campaign has no regions")
     controller_state_at_start: list[float] | None = Field(
         None,
         description="the simulation's controller state (robosuite's ramped finger command) "

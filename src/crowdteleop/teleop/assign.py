@@ -28,6 +28,7 @@ def assigned_config(config: TeleopConfig, assignment: Assignment) -> TeleopConfi
             "report_token": assignment.report_token,
             "ice_servers": [s.model_dump() for s in assignment.ice_servers],
             "practice_s": assignment.practice_s,  # the campaign's, not the spare's
+            "region": assignment.region.model_dump() if assignment.region else None,
             "standby": False,
         }
     )

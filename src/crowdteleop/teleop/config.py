@@ -8,6 +8,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from crowdteleop.control.config import ControlConfig
+from crowdteleop.recording.metadata import RegionChoice
 from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.recording.stores import StorageConfig, open_storage
 from crowdteleop.sim.config import SimConfig
@@ -170,6 +171,9 @@ class TeleopConfig(BaseModel):
         description="a practice round (reach a green ball, nothing recorded) of this many "
         "seconds before the worker's first episode; 0: none. The coordinator sets its "
         "campaign's (20 s by default); off here so scripts and benchmarks record at once",
+    )
+    region: RegionChoice | None = Field(
+        None, description="the worker's region and measured round trips, for the episodes"
     )
     telemetry_interval_s: float = Field(1.0, gt=0)
     seed: int = 0

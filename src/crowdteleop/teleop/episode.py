@@ -15,7 +15,7 @@ import numpy.typing as npt
 from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.teleoperator import TeleopStep
 from crowdteleop.recording.episode_file import CommandRecord, StepRecord
-from crowdteleop.recording.metadata import EnvArgs, EpisodeMetadata
+from crowdteleop.recording.metadata import EnvArgs, EpisodeMetadata, RegionChoice
 from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.recording.stores import SavedWhen
 from crowdteleop.recording.versions import runtime_versions
@@ -136,12 +136,14 @@ def episode_metadata(
     reset_seed: int,
     session_id: str | None = None,
     worker_id: str | None = None,
+    region: RegionChoice | None = None,
 ) -> EpisodeMetadata:
     """How an episode on this simulation is made: written by the teleop session and the
     scripted rig alike, so tests and benchmarks record the very files workers produce."""
     return EpisodeMetadata(
         session_id=session_id,
         worker_id=worker_id,
+        region=region,
         task=sim.task,
         robot=sim.robot,
         controller=control.controller,

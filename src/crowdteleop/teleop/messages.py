@@ -13,6 +13,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from crowdteleop.recording.metadata import RegionChoice
 from crowdteleop.teleop.ice import IceServer
 from crowdteleop.teleop.protocol import PeerRole
 from crowdteleop.vocab import DeviceKind, Outcome
@@ -93,6 +94,7 @@ class Assignment(BaseModel):
     practice_s: float = Field(
         0.0, ge=0, le=600, description="the campaign's practice round for this worker; 0: none"
     )
+    region: RegionChoice | None = None
 
 
 class EpisodeReport(BaseModel):

@@ -159,6 +159,7 @@ class TeleopSession:
             reset_seed=self._seed,
             session_id=self.config.session_id,
             worker_id=self.config.worker_id,
+            region=self.config.region,
         )
         self.tracker = EpisodeTracker(
             control_dt=sim.control_dt,
@@ -177,7 +178,11 @@ class TeleopSession:
         self.storage.close()  # a spooled S3 store stops its upload thread
         self.storage = config.recording.open_storage()
         self.tracker.metadata = self.tracker.metadata.model_copy(
-            update={"session_id": config.session_id, "worker_id": config.worker_id}
+            update={
+                "session_id": config.session_id,
+                "worker_id": config.worker_id,
+                "region": config.region,
+            }
         )
         self.tracker.recordings = config.recording.directory / "incoming"
         # A new worker practises (a spare is assigned once and nobody drove it before).

@@ -34,7 +34,7 @@ async function refresh(token) {
     + ` · capacity ${o.capacity}`;
   const session = [["session_id", "session"], ["worker_id", "worker"], ["campaign", "campaign"],
     ["state", "state"], ["task", "task"], ["controller", "controller"], ["interface", "interface"],
-    ["demos_done", "done"], ["demos_required", "required"]];
+    ["demos_done", "done"], ["demos_required", "required"], ["rtt_ms", "round trip ms"]];
   table($("sessions"), o.sessions, session);
   table($("queue"), o.queue, [["queue_position", "position"], ...session]);
   table($("servers"), o.teleop_servers, [["session_id", "session"], ["url", "url"], ["pid", "pid"], ["alive", "alive"]]);

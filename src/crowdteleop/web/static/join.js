@@ -1,12 +1,14 @@
 // The join / consent page: the study's ids come from the link; agreeing gets a worker token.
 
 import { call, worker } from "./api.js";
+import { RTTS_PARAM, chooseRegion, decodeRoundTrips, joinUrlAt, measure, roundTrips } from "./region.js";
 
 const $ = (id) => document.getElementById(id);
 
 const minutes = (s) => Math.max(1, Math.round(s / 60));
 
 // What the study asks, before anyone agrees: the task, how many demonstrations, how long.
+// Returns the campaign (null when the link names none here).
 async function showCampaign(name) {
   try {
     const c = await call(`/api/campaigns/${encodeURIComponent(name)}`);
@@ -16,21 +18,49 @@ async function showCampaign(name) {
     $("duration").textContent = c.typical_session_s
       ? `, usually about ${minutes(c.typical_session_s)} min (at most ${minutes(c.time_limit_s)} min)`
       : `, at most ${minutes(c.time_limit_s)} min`;
+    return c;
   } catch (error) {
     if (error.code === "unknown_campaign") {
       $("banner").className = "banner error show";
       $("banner").textContent = "This study link names no study here: please check the link.";
     }
+    return null;
   }
+}
+
+// A campaign served from several regions: time each, and go to the nearest with a free robot
+// unless that is here. Returns the round trips to record (null without regions, undefined when
+// leaving); a link that carries them was sent here by another region's page, so it stays.
+async function placeWorker(campaign, carried) {
+  if (!campaign || campaign.regions.length < 2) return null;
+  if (carried !== undefined) return decodeRoundTrips(carried);
+  const text = $("instructions").textContent;
+  $("instructions").textContent = "Finding the nearest server…";
+  const measured = await Promise.all(campaign.regions.map((region) => measure(region)));
+  const chosen = chooseRegion(measured);
+  const rtts = roundTrips(measured);
+  if (chosen && chosen.name !== campaign.region) {
+    location.replace(joinUrlAt(chosen, location.search, rtts));
+    return undefined;
+  }
+  $("instructions").textContent = text;
+  return rtts;
 }
 
 async function main() {
   const params = Object.fromEntries(new URLSearchParams(location.search));
   const campaign = params.campaign || null;
+  const carried = params[RTTS_PARAM];
   delete params.campaign;
-  $("consent").onchange = () => { $("agree").disabled = !$("consent").checked; };
+  delete params[RTTS_PARAM];
+  let placed = false; // Start waits for the region's choice (at once without regions)
+  const allow = () => { $("agree").disabled = !placed || !$("consent").checked; };
+  $("consent").onchange = allow;
   $("instructions").textContent = "Read the consent below, then start.";
-  showCampaign(campaign || "default");
+  const rtts = await placeWorker(await showCampaign(campaign || "default"), carried);
+  if (rtts === undefined) return;
+  placed = true;
+  allow();
   // The token this tab was given before proves a rejoin is the same browser; another browser
   // with the same study id is refused while the session is live, unless it takes over.
   const earlier = worker.load();
@@ -40,6 +70,7 @@ async function main() {
     try {
       const body = { params, campaign, take_over: takeOver };
       if (earlier && earlier.worker_token) body.worker_token = earlier.worker_token;
+      if (rtts) body.region_rtts_ms = rtts;
       const joined = await call("/api/join", { method: "POST", body });
       worker.save(joined);
       location.assign("/teleop");
