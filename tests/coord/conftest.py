@@ -53,3 +53,14 @@ def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str
         db.execute("DROP SCHEMA public CASCADE")
         db.execute("CREATE SCHEMA public")
     yield server
+
+
+@pytest.fixture
+def shared_database(postgres_database: str) -> str:
+    """The session's PostgreSQL database, emptied: what several replicas of a test share."""
+    import psycopg
+
+    with psycopg.connect(postgres_database, autocommit=True) as db:
+        db.execute("DROP SCHEMA public CASCADE")
+        db.execute("CREATE SCHEMA public")
+    return postgres_database

@@ -33,7 +33,7 @@ def test_a_campaigns_practice_round_reaches_launched_servers_and_warm_spares(tmp
     quick = configs.for_session(_session("quick"), report_token="report-token-2")
     assert (study.practice_s, quick.practice_s) == (20.0, 0.0), "on by default, 0 turns it off"
 
-    spare = configs.for_spare(("lift", "Panda", "ik-velocity"))
+    spare = configs.for_spare(("lift", "Panda", "ik-velocity"), "spare-1")
     assert spare.practice_s == 0.0, "a spare has no campaign yet"
     assert assigned_config(spare, assignment_of(study)).practice_s == 20.0
     assert assigned_config(spare, assignment_of(quick)).practice_s == 0.0

@@ -80,7 +80,9 @@ def test_a_workers_region_and_round_trips_reach_their_teleop_server(tmp_path):
         assert shown["rtt_ms"] == 21.0, "the admin page shows how far each worker is"
     assert sent.region == RegionChoice(region="china", rtts_ms=rtts)
     # A warm spare (built before anyone's region) takes it on with its session.
-    spare = client.app_state.coordinator.configs.for_spare(("lift", "Sawyer", "ik-velocity"))
+    spare = client.app_state.coordinator.configs.for_spare(
+        ("lift", "Sawyer", "ik-velocity"), "spare-1"
+    )
     assert spare.region is None
     assert assigned_config(spare, assignment_of(sent)).region == sent.region
 

@@ -19,7 +19,6 @@ from typing import Any
 
 import httpx
 import psycopg
-import pytest
 
 from crowdteleop.coord.app import create_app
 from tests.fixtures.coord import ADMIN, FakeLauncher, coord_config, served_app
@@ -32,14 +31,6 @@ OPEN_ADMISSION = {
     "live_sessions_per_address": 256,
     "joins_per_minute_per_address": 600,
 }
-
-
-@pytest.fixture
-def shared_database(postgres_database: str) -> str:
-    with psycopg.connect(postgres_database, autocommit=True) as db:
-        db.execute("DROP SCHEMA public CASCADE")
-        db.execute("CREATE SCHEMA public")
-    return postgres_database
 
 
 @contextlib.contextmanager

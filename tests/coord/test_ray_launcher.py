@@ -10,52 +10,20 @@ root)."""
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from crowdteleop.dataset.build import episode_files, read_inputs
+from tests.fixtures.netns import NEEDS_ROOT, run_check
 
 CHECK = Path(__file__).parents[1] / "fixtures" / "ray_launch_check.py"
-ROOT = Path(__file__).parents[2]
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(
-        os.geteuid() != 0,
-        reason="needs root for a network namespace of its own (Ray binds every interface)",
-    ),
-]
+pytestmark = [pytest.mark.slow, NEEDS_ROOT]
 
 
 def test_sessions_spread_over_raylets_survive_a_coordinator_restart_and_a_node_loss(tmp_path):
-    # WebRTC (aioice) skips loopback addresses: a veth pair gives the bots and teleop
-    # servers a private address to meet on, reachable from nowhere else.
-    network = "ip link set lo up && ip link add ct0 type veth peer name ct1"
-    network += " && ip link set ct0 up && ip link set ct1 up"
-    network += " && ip addr add 10.213.0.1/24 dev ct0"
-    done = subprocess.run(
-        [
-            "unshare",
-            "--net",
-            "--",
-            "bash",
-            "-c",
-            f"{network} && {sys.executable} {CHECK} {tmp_path}",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=1500,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
-    lines = [line for line in done.stdout.splitlines() if line.startswith("RAY_LAUNCH ")]
-    assert done.returncode == 0 and lines, done.stdout[-3000:] + done.stderr[-5000:]
-    results = json.loads(lines[-1].removeprefix("RAY_LAUNCH "))
+    results = run_check(CHECK, str(tmp_path), marker="RAY_LAUNCH")
     print(
         f"Ray: cluster up in {results['cluster_up_s']:.1f} s; node loss noticed in "
         f"{results['noticed_s']:.1f} s; the other session ran "

@@ -1,63 +1,46 @@
 """Two coordinator replicas on one PostgreSQL database behind a real load balancer (HAProxy,
 round robin), launching teleop servers on a real Ray cluster (issue 14): four bots join through
-both at once and are admitted first come, first served, never past the cluster's two slots;
+both at once and are admitted first come, first served, never past the cluster's four slots
+less the one warm spare both replicas keep together (and hand to whichever admits a worker);
 half of them pair a phone through the balancer (codes made on one replica, redeemed on
-whichever the next call reaches). Stopping the replica that watches a running session loses no
-session: the other takes its server over (same process, no reconnect) and every worker
-finishes.
+whichever the next call reaches). Stopping the replica that watches a running session (one
+that began as the spare) loses no session: the other takes its server over by name (same
+process, no reconnect), and its spare too, and every worker finishes.
 
 Ray listens on every interface, so everything runs in a network namespace of its own
 (`unshare --net`, which needs root); PostgreSQL is reached over its Unix socket."""
 
 from __future__ import annotations
 
-import json
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from crowdteleop.dataset.build import episode_files, read_inputs
+from tests.fixtures.netns import NEEDS_ROOT, run_check
 
 CHECK = Path(__file__).parents[1] / "fixtures" / "ray_replicas_check.py"
-ROOT = Path(__file__).parents[2]
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(
-        os.geteuid() != 0,
-        reason="needs root for a network namespace of its own (Ray binds every interface)",
-    ),
-]
+pytestmark = [pytest.mark.slow, NEEDS_ROOT]
 
 
 def test_replicas_share_one_queue_and_a_stopped_one_loses_no_session(tmp_path, postgres_database):
     assert shutil.which("haproxy"), "HAProxy is installed by `make test` (scripts/system-deps.sh)"
-    network = "ip link set lo up && ip link add ct0 type veth peer name ct1"
-    network += " && ip link set ct0 up && ip link set ct1 up"
-    network += " && ip addr add 10.213.0.1/24 dev ct0"
     database = postgres_database.rsplit("/", 1)[1]
-    command = f"{network} && {sys.executable} {CHECK} {tmp_path} {database}"
-    done = subprocess.run(
-        ["unshare", "--net", "--", "bash", "-c", command],
-        capture_output=True,
-        text=True,
-        timeout=1500,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
-    lines = [line for line in done.stdout.splitlines() if line.startswith("RAY_REPLICAS ")]
-    logs = "".join(p.read_text()[-3000:] for p in sorted(tmp_path.glob("*.log")))
-    assert done.returncode == 0 and lines, done.stdout[-3000:] + done.stderr[-5000:] + logs
-    results = json.loads(lines[-1].removeprefix("RAY_REPLICAS "))
+    results = run_check(CHECK, str(tmp_path), database, marker="RAY_REPLICAS", logs=tmp_path)
     print(
         f"replica stopped in {results['replica_stop_s']:.1f} s; its sessions taken over in "
         f"{results['taken_over_s']:.1f} s; most sessions holding a slot: {results['most_held']}"
     )
-    assert results["most_held"] == 2, "never past the cluster's two slots"
+    assert results["capacities"] == [3, 3], "four slots less the one spare, on both replicas"
+    assert results["most_held"] == 3, "never past the slots the spare leaves"
+    assert results["most_spares"] == 1, "one spare for both replicas, not one each"
+    assert results["spare_born"] >= 1, "a worker was given the spare, through either replica"
+    assert results["moved_spare_born"] >= 1, "a spare-born server was taken over by its name"
+    assert all(r != results["victim"] for r, _ in results["spares_after_stop"]), (
+        "the stopped replica's spare is watched by the other (it keeps running)"
+    )
     assert results["admitted_order"] == results["created_order"], "first come, first served"
     assert results["moved"] and results["same_servers"], "taken over: the same servers run on"
     reports = results["reports"]

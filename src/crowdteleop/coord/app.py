@@ -119,7 +119,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
     @app.get("/health", tags=["server"])
     async def health(request: Request) -> dict[str, Any]:
         coordinator: Coordinator = request.app.state.coordinator
-        spares = sum(len(ready) for ready in coordinator.spares.ready.values())
+        spares = len(coordinator.spares.handles)
         return {
             "status": "ok",
             "capacity": coordinator.pool.capacity,
@@ -136,7 +136,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         for state in ("queued", "starting", "ready"):
             metrics.sessions.labels(state=state).set(sum(s.state == state for s in live))
         metrics.capacity.set(coordinator.pool.capacity)
-        metrics.spares.set(sum(len(ready) for ready in coordinator.spares.ready.values()))
+        metrics.spares.set(len(coordinator.spares.handles))
         recent = await coordinator.store.episodes_since(time.time() - 3600)
         metrics.demos_last_hour.set(sum(e.outcome == "success" for e in recent))
         metrics.spool_pending.set(sum(s.spool_pending for s in coordinator.pool.slots.values()))

@@ -1,5 +1,5 @@
 """A cluster launcher's capacity is the cluster's, and changes as nodes come and go: each
-reaper sweep reads it (less the warm spares, which hold slots there too), admits queued
+reaper sweep reads it (less every replica's warm spares, which hold slots there too), admits queued
 sessions into new room, and tells the cluster how many sessions want a slot."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ async def follow_cluster(coordinator: Coordinator, admit: bool = True) -> None:
     if not isinstance(launcher, ClusterLauncher):
         return
     slots = await asyncio.to_thread(launcher.capacity)
-    capacity = max(0, slots - coordinator.config.spare_servers)
+    capacity = max(0, slots - await coordinator.spares.registry.count())  # every replica's
     if capacity != coordinator.pool.capacity:
         log.info("cluster capacity %d -> %d sessions", coordinator.pool.capacity, capacity)
         coordinator.pool.capacity = capacity

@@ -59,7 +59,8 @@ class CoordConfig(BaseModel):
         ge=0,
         le=16,
         description="warm teleop servers kept ready per (task, robot, controller), so a worker "
-        "sees the robot in about a second instead of waiting for a simulation to build",
+        "sees the robot in about a second instead of waiting for a simulation to build; on a "
+        "cluster for all replicas together, with local processes per replica",
     )
     admin_token: str = Field(min_length=16, max_length=256)
     public_url: str = Field(

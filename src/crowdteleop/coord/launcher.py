@@ -75,12 +75,18 @@ class ReattachingLauncher(Protocol):
     """A launcher whose servers outlive the coordinator (Ray's detached actors): a restarted
     coordinator takes its running sessions' servers back instead of orphaning them."""
 
-    async def reattach(self, session_id: str) -> TeleopHandle | None:
-        """The session's running server, or None (gone, or never started)."""
+    async def reattach(self, session_id: str, name: str | None = None) -> TeleopHandle | None:
+        """The session's running server (the one called `name`, when the session records
+        it), or None (gone, or never started)."""
         ...
 
-    async def stop_others(self, session_ids: set[str]) -> int:
-        """Stop every server of this launcher not serving `session_ids`; how many."""
+    def name_of(self, handle: TeleopHandle) -> str:
+        """The server's name in the launcher: what `reattach` finds it by."""
+        ...
+
+    async def stop_others(self, keep: set[str]) -> int:
+        """Stop every server of this launcher neither started for a session id in `keep` nor
+        called by a name in it; how many."""
         ...
 
     def release(self, handle: TeleopHandle) -> None:
@@ -88,16 +94,23 @@ class ReattachingLauncher(Protocol):
         ...
 
 
-async def reattach(launcher: Launcher, session_id: str) -> TeleopHandle | None:
-    return (
-        await launcher.reattach(session_id) if isinstance(launcher, ReattachingLauncher) else None
-    )
+async def reattach(
+    launcher: Launcher, session_id: str, name: str | None = None
+) -> TeleopHandle | None:
+    if not isinstance(launcher, ReattachingLauncher):
+        return None
+    return await launcher.reattach(session_id, name)
 
 
-async def stop_orphans(launcher: Launcher, session_ids: set[str]) -> int:
+def server_name(launcher: Launcher, handle: TeleopHandle) -> str | None:
+    """What a replica re-attaches the server by (None: only its own process can reach it)."""
+    return launcher.name_of(handle) if isinstance(launcher, ReattachingLauncher) else None
+
+
+async def stop_orphans(launcher: Launcher, keep: set[str]) -> int:
     if not isinstance(launcher, ReattachingLauncher):
         return 0  # local servers die with the coordinator (PR_SET_PDEATHSIG)
-    return await launcher.stop_others(session_ids)
+    return await launcher.stop_others(keep)
 
 
 @dataclass

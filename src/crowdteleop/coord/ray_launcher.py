@@ -170,28 +170,31 @@ class RayLauncher:
         names: list[str] = await asyncio.to_thread(list_named_actors)
         return {n: n.removeprefix(PREFIX).rsplit("-", 1)[0] for n in names if n.startswith(PREFIX)}
 
-    async def reattach(self, session_id: str) -> RayHandle | None:
+    async def reattach(self, session_id: str, name: str | None = None) -> RayHandle | None:
         import ray
 
-        for name, owner in (await self._actors()).items():
-            if owner != session_id:
-                continue
+        actors = await self._actors()
+        for candidate in [n for n, owner in actors.items() if n == name or owner == session_id]:
             info: dict[str, Any] | None
             try:
-                actor = ray.get_actor(name)
+                actor = ray.get_actor(candidate)
                 info = await asyncio.wait_for(actor.info.remote(), 10)
             except (Exception, TimeoutError):
                 info = None
             if info is not None:
-                return self._watched(name, actor, info)
+                return self._watched(candidate, actor, info)
         return None
 
-    async def stop_others(self, session_ids: set[str]) -> int:
+    def name_of(self, handle: TeleopHandle) -> str:
+        assert isinstance(handle, RayHandle)
+        return handle.name
+
+    async def stop_others(self, keep: set[str]) -> int:
         import ray
 
         stopped = 0
         for name, owner in (await self._actors()).items():
-            if owner not in session_ids:
+            if owner not in keep and name not in keep:
                 with contextlib.suppress(Exception):
                     self._kill(ray.get_actor(name))
                     stopped += 1

@@ -23,6 +23,7 @@ from crowdteleop.coord.launcher import (
     LaunchError,
     ReattachingLauncher,
     reattach,
+    server_name,
     stop_orphans,
 )
 from crowdteleop.coord.limits import retry_after
@@ -31,6 +32,7 @@ from crowdteleop.coord.pool import TeleopPool
 from crowdteleop.coord.replicas import AdmissionLock, Replicas, default_replica_name
 from crowdteleop.coord.security import new_id, new_token, token_hash
 from crowdteleop.coord.session_keys import SessionKeys
+from crowdteleop.coord.spare_registry import SpareRegistry
 from crowdteleop.coord.spares import SparePool
 from crowdteleop.coord.store import Store
 from crowdteleop.coord.tables import Session, Worker
@@ -55,10 +57,17 @@ class Coordinator:
         self.metrics = metrics or CoordMetrics()
         self.configs = TeleopConfigs(config, keys)
         self.pool = TeleopPool(launcher, config.capacity)
-        self.spares = SparePool(launcher, self.configs.for_spare, config.spare_servers)
         self.lock = AdmissionLock(store.engine)
         name = config.replica_name or default_replica_name()
         self.replicas = Replicas(store.transactions, name, config.replica_stale_after_s)
+        self.spares = SparePool(
+            launcher,
+            self.configs.for_spare,
+            keys.teleop_admin_token,
+            config.spare_servers,
+            SpareRegistry(store.transactions, name),
+            self.lock,
+        )
         self._launches: dict[str, asyncio.Task[None]] = {}
         self.waits = WaitEstimates(store, config, lambda: self.pool.capacity)
 
@@ -73,6 +82,8 @@ class Coordinator:
         await self.store.save_campaigns(self.config.campaigns)
         await self.replicas.beat()
         others = await self.replicas.others_alive()
+        await self.spares.forget_unstarted()
+        await self.spares.sweep(others | {self.replicas.name})  # its own, taken back if alive
         now = time.time()
         async with self.lock:
             for session in await self.store.live_sessions():
@@ -81,8 +92,11 @@ class Coordinator:
                 await self.store.update_session(session.id, last_heartbeat_at=now)
                 if session.state != "queued":
                     await self.take_over(session, "the coordinator restarted")
-            held = {s.id for s in await self.store.live_sessions() if s.state != "queued"}
-            await stop_orphans(self.pool.launcher, held)
+            held = [s for s in await self.store.live_sessions() if s.state != "queued"]
+            spares = await self.spares.registry.rows()
+            keep = {s.id for s in held} | {s.server for s in held if s.server}
+            keep |= {r.id for r in spares} | {r.server for r in spares if r.server}
+            await stop_orphans(self.pool.launcher, keep)
             await self._admit()
         self.spares.fill(self.configs.spare_keys())
 
@@ -90,7 +104,7 @@ class Coordinator:
         """Watch `session`'s running server from this replica, or queue the session again
         at its place (count kept) if its server cannot be taken back; whether it was. The
         caller holds the lock."""
-        handle = await reattach(self.pool.launcher, session.id)
+        handle = await reattach(self.pool.launcher, session.id, session.server)
         if session.state == "ready" and self.pool.attach(session.id, handle):
             await self.store.update_session(session.id, replica=self.replicas.name)
             await self.store.log("taken_over", session.id, replica=self.replicas.name)
@@ -111,11 +125,11 @@ class Coordinator:
         for task in list(self._launches.values()):
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await task
-        await self.spares.close()
         launcher = self.pool.launcher
         others: set[str] = set()
         with contextlib.suppress(Exception):  # the database may be gone too
             others = await self.replicas.others_alive()
+        await self.spares.close(hand_over=bool(others))
         if others and isinstance(launcher, ReattachingLauncher):
             log.info("leaving %d running sessions to %s", len(self.pool.slots), sorted(others))
             for session_id, slot in list(self.pool.slots.items()):
@@ -280,6 +294,7 @@ class Coordinator:
                 ready_at=now,
                 last_heartbeat_at=now,  # the page may have waited for the server to start
                 teleop_url=handle.url,
+                server=server_name(self.pool.launcher, handle),
             )
         await self.store.log("ready", session_id, session.worker_id, url=handle.url)
 

@@ -89,6 +89,9 @@ class Session(Base):
     replica: Mapped[str | None] = mapped_column(String(128), index=True, default=None)
     # The worker's region choice when the session began (a RegionChoice): its episodes carry it.
     region: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
+    # The launcher's name for its server (a Ray actor's): any replica finds it by this, also
+    # when the server was born a warm spare under another name.
+    server: Mapped[str | None] = mapped_column(String(128), default=None)
 
 
 class Episode(Base):
@@ -155,6 +158,20 @@ class Replica(Base):
     name: Mapped[str] = mapped_column(String(128), primary_key=True)
     started_at: Mapped[float] = mapped_column(Float)
     seen_at: Mapped[float] = mapped_column(Float)
+
+
+class Spare(Base):
+    """A warm teleop server of some replica (coord/spares.py): counted by all (on a cluster it
+    holds a slot) and claimed by whichever replica admits a worker."""
+
+    __tablename__ = "spares"
+
+    id: Mapped[str] = mapped_column(String(40), primary_key=True)  # its session id (spare-...)
+    key: Mapped[str] = mapped_column(String(200), index=True)  # task/robot/controller
+    replica: Mapped[str] = mapped_column(String(128), index=True)  # who started and watches it
+    server: Mapped[str | None] = mapped_column(String(128))  # the launcher's name for it
+    url: Mapped[str | None] = mapped_column(String(256))  # none while it starts
+    started_at: Mapped[float] = mapped_column(Float)
 
 
 class LimitEvent(Base):

@@ -71,4 +71,6 @@ async def reconcile(coordinator: Coordinator) -> None:
 async def sweep_shared_state(coordinator: Coordinator) -> None:
     await adopt(coordinator)
     await reconcile(coordinator)
+    await coordinator.spares.sweep(await coordinator.replicas.alive())
+    coordinator.spares.fill(coordinator.configs.spare_keys())  # replace spares that went
     await forget_old(coordinator.store.transactions, SHARED_WINDOW_S)

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import secrets
 import time
 from typing import Any
 
 from crowdteleop.coord.config import CoordConfig
-from crowdteleop.coord.security import new_token
 from crowdteleop.coord.session_keys import SessionKeys
-from crowdteleop.coord.spares import SpareKey
+from crowdteleop.coord.spare_registry import SpareKey
 from crowdteleop.coord.tables import Session
 from crowdteleop.coord.turn import turn_credentials
 from crowdteleop.teleop.config import TeleopConfig
@@ -103,17 +101,17 @@ class TeleopConfigs:
                     keys.append(key)
         return keys
 
-    def for_spare(self, key: SpareKey) -> TeleopConfig:
-        """A spare's config: the simulation of `key`, a placeholder identity (standby)."""
+    def for_spare(self, key: SpareKey, spare_id: str) -> TeleopConfig:
+        """A spare's config: the simulation of `key`, a placeholder identity (standby). Its
+        tokens are derived from the spare's id, so any replica can assign it."""
         task, robot, controller = key
-        spare_id = f"spare-{secrets.token_hex(6)}"
         fields = deep_merge(
             self.config.teleop,
             {
                 "session_id": spare_id,
                 "worker_id": "unassigned",
-                "token": new_token(),
-                "admin_token": new_token(),
+                "token": self.keys.teleop_token(spare_id),
+                "admin_token": self.keys.teleop_admin_token(spare_id),
                 "standby": True,
                 "sim": {"task": task, "robot": robot},
                 "control": {"controller": controller},

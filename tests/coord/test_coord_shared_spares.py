@@ -1,0 +1,112 @@
+"""Warm spares on a cluster are the replicas' together (issue 14, item 2): one spare per kind
+for all of them, counted against the cluster's slots by each, handed by whichever replica
+admits a worker, and kept running (watched by another) when the replica that started it
+stops. Two replicas' coordinators run in one event loop on the machine's PostgreSQL, with the
+fake launcher as a cluster's (its servers outlive a replica and are found by name, as Ray's
+named actors; test_ray_replicas.py runs the real cluster)."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from pathlib import Path
+
+from crowdteleop.coord.cluster import follow_cluster
+from crowdteleop.coord.db import make_engine, migrate
+from crowdteleop.coord.service import Coordinator
+from crowdteleop.coord.session_keys import SessionKeys
+from crowdteleop.coord.store import Store
+from crowdteleop.coord.takeover import sweep_shared_state
+from tests.fixtures.coord import FakeCluster, coord_config
+
+SLOTS = 4
+
+
+async def replica(tmp_path: Path, database: str, name: str, cluster: FakeCluster) -> Coordinator:
+    config = coord_config(
+        tmp_path / name, database, spare_servers=1, replica_name=name, replica_stale_after_s=2.0
+    )
+    keys = SessionKeys.load_or_create(tmp_path / "session.key")  # one secret, as replicas share
+    coordinator = Coordinator(config, Store(make_engine(database)), cluster, keys)
+    await coordinator.start()
+    return coordinator
+
+
+async def sweep(*replicas: Coordinator) -> None:
+    for coordinator in replicas:
+        await sweep_shared_state(coordinator)
+        await follow_cluster(coordinator)
+
+
+async def spares(coordinator: Coordinator) -> list[tuple[str, str, bool]]:
+    rows = await coordinator.spares.registry.rows()
+    return sorted((row.id, row.replica, row.url is not None) for row in rows)
+
+
+async def settle(*replicas: Coordinator, ready_spares: int = 1, timeout_s: float = 10) -> None:
+    deadline = time.monotonic() + timeout_s
+    while sum(ready for *_, ready in await spares(replicas[0])) < ready_spares:
+        assert time.monotonic() < deadline, await spares(replicas[0])
+        await sweep(*replicas)
+        await asyncio.sleep(0.05)
+
+
+async def scenario(tmp_path: Path, database: str) -> None:
+    await migrate(database)
+    cluster = FakeCluster(SLOTS, start_delay_s=0.1)
+    a = await replica(tmp_path, database, "a", cluster)
+    b = await replica(tmp_path, database, "b", cluster)
+    running = [a, b]
+    try:
+        await settle(a, b)
+        for _ in range(5):  # more sweeps start no second one
+            await sweep(a, b)
+            await asyncio.sleep(0.05)
+        [(spare_id, owner, _)] = await spares(a)
+        assert len(cluster.handles) == 1, "one spare for both replicas, not one each"
+        assert (a.pool.capacity, b.pool.capacity) == (SLOTS - 1, SLOTS - 1), "it holds a slot"
+
+        # A worker admitted by the replica that did not start the spare gets it.
+        other = b if owner == "a" else a
+        campaign = other.config.default_campaign
+        worker, _token, _ = await other.store.join(campaign.name, "prolific", "w1")
+        session = await other.create_session(worker, campaign)
+        deadline = time.monotonic() + 10
+        while (current := await other.store.session(session.id)).state != "ready":
+            assert time.monotonic() < deadline, current.state
+            await asyncio.sleep(0.05)
+        assert session.id not in cluster.handles, "no server was built for it"
+        assert cluster.handles[spare_id].config.session_id == session.id, "the spare took it"
+        assert current.server == cluster.name_of(cluster.handles[spare_id])
+        assert current.replica == other.replicas.name
+
+        # A new spare replaces it; the first replica lets go of the one it gave away.
+        await settle(a, b)
+        assert len(await spares(a)) == 1
+        assert spare_id not in cluster.stopped, "a spare serving a worker is never stopped"
+        starter = a if owner == "a" else b
+        assert spare_id not in starter.spares.handles
+
+        # The replica watching the new spare stops: the other takes it over, running.
+        [(new_spare, new_owner, _)] = await spares(a)
+        leaving, staying = (a, b) if new_owner == "a" else (b, a)
+        await leaving.close()
+        await leaving.store.close()
+        running.remove(leaving)
+        deadline = time.monotonic() + 10
+        while (await spares(staying))[0][1] != staying.replicas.name:
+            assert time.monotonic() < deadline, await spares(staying)
+            await sweep(staying)
+            await asyncio.sleep(0.1)
+        assert new_spare not in cluster.stopped, "handed over, not stopped"
+        assert new_spare in staying.spares.handles
+        assert cluster.handles[spare_id].alive, "the worker's server ran on throughout"
+    finally:
+        for coordinator in running:
+            await coordinator.close()
+            await coordinator.store.close()
+    assert not any(h.alive for h in cluster.handles.values()), "the last replica stops them"
+
+
+def test_replicas_keep_one_spare_together_and_any_of_them_hands_it_out(tmp_path, shared_database):
+    asyncio.run(asyncio.wait_for(scenario(tmp_path, shared_database), 60))
