@@ -45,5 +45,12 @@ def test_sessions_spread_over_raylets_survive_a_coordinator_restart_and_a_node_l
     assert any("new robot is on its way" in n for n in lost["notices"]), lost["notices"]
     episodes, bad = read_inputs(episode_files([Path(results["data_dir"]) / "episodes"]))
     assert not bad, "every stored episode reads back"
+    cut_short = [
+        e
+        for _, e in episodes
+        if e.metadata.get("session_id") == results["lost_session"] and e.outcome != "success"
+    ]
+    print("the lost node's episode:", [(e.outcome, e.steps, e.recovered) for e in cut_short])
+    assert any(e.steps > 0 for e in cut_short), "the episode the node loss cut short is stored"
     successes = [e for _, e in episodes if e.outcome == "success"]
     assert len(successes) >= 12, "both workers' demonstrations are stored"
