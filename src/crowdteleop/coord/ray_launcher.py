@@ -48,6 +48,14 @@ class RayLauncherConfig(BaseModel):
     address: str = Field("auto", description="the cluster's GCS address (ray.init(address=...))")
     namespace: str = Field("crowdteleop", description="named actors live in this namespace")
     cpus_per_session: float = Field(0.5, gt=0, le=64, description="CPU share of one session")
+    gpus_per_session: float = Field(
+        0.0,
+        ge=0,
+        le=8,
+        description="GPU share of one session (e.g. 0.125: eight per GPU); its server then "
+        "renders with EGL on the GPU Ray gives it (crowdteleop.gl picks egl where a GPU "
+        "driver is present)",
+    )
     node_work_dir: Path = Field(
         Path("/tmp/crowdteleop-ray"), description="where a node keeps its servers' configs/logs"
     )
@@ -142,6 +150,7 @@ class RayLauncher:
             name=name,
             lifetime="detached",
             num_cpus=self.config.cpus_per_session,
+            num_gpus=self.config.gpus_per_session,
             resources={TELEOP_RESOURCE: 1},
             max_restarts=0,
         ).remote(str(self.config.node_work_dir), self.teleop_host)
