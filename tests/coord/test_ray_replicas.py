@@ -31,7 +31,9 @@ def test_replicas_share_one_queue_and_a_stopped_one_loses_no_session(tmp_path, p
     results = run_check(CHECK, str(tmp_path), database, marker="RAY_REPLICAS", logs=tmp_path)
     print(
         f"replica stopped in {results['replica_stop_s']:.1f} s; its sessions taken over in "
-        f"{results['taken_over_s']:.1f} s; most sessions holding a slot: {results['most_held']}"
+        f"{results['taken_over_s']:.1f} s; most sessions holding a slot: {results['most_held']}; "
+        f"most spares: {results['most_spares']}; capacities {results['capacities']}; sessions "
+        f"given the spare: {results['spare_born']}, {results['moved_spare_born']} of them moved"
     )
     assert results["capacities"] == [3, 3], "four slots less the one spare, on both replicas"
     assert results["most_held"] == 3, "never past the slots the spare leaves"
@@ -50,4 +52,4 @@ def test_replicas_share_one_queue_and_a_stopped_one_loses_no_session(tmp_path, p
     assert results["servers_left"] == 0, "the last replica's stop stops every server"
     episodes, bad = read_inputs(episode_files([Path(results["data_dir"]) / "episodes"]))
     assert not bad, "every stored episode reads back"
-    assert sum(e.outcome == "success" for _, e in episodes) >= 8, "all workers' demos stored"
+    assert sum(e.outcome == "success" for _, e in episodes) >= 4 * 6, "all workers' demos stored"
