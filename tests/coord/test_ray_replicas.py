@@ -25,9 +25,9 @@ CHECK = Path(__file__).parents[1] / "fixtures" / "ray_replicas_check.py"
 pytestmark = [pytest.mark.slow, NEEDS_ROOT]
 
 
-def test_replicas_share_one_queue_and_a_stopped_one_loses_no_session(tmp_path, postgres_database):
+def test_replicas_share_one_queue_and_a_stopped_one_loses_no_session(tmp_path, shared_database):
     assert shutil.which("haproxy"), "HAProxy is installed by `make test` (scripts/system-deps.sh)"
-    database = postgres_database.rsplit("/", 1)[1]
+    database = shared_database.rsplit("/", 1)[1]  # emptied: other tests leave sessions
     results = run_check(CHECK, str(tmp_path), database, marker="RAY_REPLICAS", logs=tmp_path)
     print(
         f"replica stopped in {results['replica_stop_s']:.1f} s; its sessions taken over in "
