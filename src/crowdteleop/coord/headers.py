@@ -14,19 +14,24 @@ from collections.abc import Iterable, Mapping
 from starlette.datastructures import MutableHeaders
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-PAGE_POLICY = "; ".join(
-    [
-        "default-src 'self'",
-        "script-src 'self'",
-        "style-src 'self' 'unsafe-inline'",
-        "img-src 'self'",
-        "connect-src 'self'",
-        "object-src 'none'",
-        "base-uri 'none'",
-        "form-action 'self'",
-        "frame-ancestors 'none'",
-    ]
-)
+
+def page_policy(connect_origins: Iterable[str] = ()) -> str:
+    """The pages' policy; they may also fetch from `connect_origins` (campaigns' regions)."""
+    return "; ".join(
+        [
+            "default-src 'self'",
+            "script-src 'self'",
+            "style-src 'self' 'unsafe-inline'",
+            "img-src 'self'",
+            " ".join(["connect-src 'self'", *connect_origins]),
+            "object-src 'none'",
+            "base-uri 'none'",
+            "form-action 'self'",
+            "frame-ancestors 'none'",
+        ]
+    )
+
+
 # Swagger UI and ReDoc (only served when CoordConfig.api_docs is on) come from a CDN and start
 # with an inline script; the rest of the policy stays.
 DOCS_POLICY = "; ".join(
@@ -52,15 +57,10 @@ COMMON_HEADERS: Mapping[str, str] = {
 }
 
 
-def security_headers(
-    path: str = "", docs_paths: Iterable[str] = (), connect_origins: Iterable[str] = ()
-) -> dict[str, str]:
-    """The headers a response to `path` gets (the docs' own policy on `docs_paths`); pages
-    may also fetch from `connect_origins` (the campaigns' regions)."""
-    policy = DOCS_POLICY if path in docs_paths else PAGE_POLICY
-    extra = " ".join(connect_origins)
-    if extra and policy is PAGE_POLICY:
-        policy = policy.replace("connect-src 'self'", f"connect-src 'self' {extra}")
+def security_headers(docs: bool = False, connect_origins: Iterable[str] = ()) -> dict[str, str]:
+    """The headers a response gets (the API docs' own policy with `docs`); pages may also
+    fetch from `connect_origins` (the campaigns' regions)."""
+    policy = DOCS_POLICY if docs else page_policy(connect_origins)
     return {"Content-Security-Policy": policy, **COMMON_HEADERS}
 
 
@@ -71,13 +71,15 @@ class SecurityHeadersMiddleware:
         self, app: ASGIApp, docs_paths: Iterable[str] = (), connect_origins: Iterable[str] = ()
     ) -> None:
         self.app, self.docs_paths = app, frozenset(docs_paths)
-        self.connect_origins = tuple(connect_origins)
+        self.page_headers = security_headers(connect_origins=connect_origins)  # made once
+        self.docs_headers = security_headers(docs=True)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        extra = security_headers(scope.get("path", ""), self.docs_paths, self.connect_origins)
+        docs = scope.get("path", "") in self.docs_paths
+        extra = self.docs_headers if docs else self.page_headers
 
         async def send_with_headers(message: Message) -> None:
             if message["type"] == "http.response.start":

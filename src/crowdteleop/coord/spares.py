@@ -29,7 +29,7 @@ from crowdteleop.coord.launcher import (
     reattach,
     server_name,
 )
-from crowdteleop.coord.spare_registry import SpareKey, SpareRegistry, SpareRow
+from crowdteleop.coord.spare_registry import SpareKey, SpareRegistry, SpareRow, key_text
 from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.messages import Assignment
 
@@ -128,10 +128,18 @@ class SparePool:
     async def _reach(self, row: SpareRow) -> TeleopHandle | None:
         return await reattach(self.launcher, row.id, row.server)
 
-    async def sweep(self, alive_replicas: set[str]) -> None:
+    def short(self, keys: list[SpareKey], rows: list[SpareRow]) -> list[SpareKey]:
+        """The kinds of `keys` with fewer than `per_key` spares in `rows` (every replica's on
+        a cluster, this one's otherwise): `fill` need not take the lock for the others."""
+        counted = [r for r in rows if self.shared or r.replica == self.registry.replica]
+        return [k for k in keys if sum(r.key == key_text(k) for r in counted) < self.per_key]
+
+    async def sweep(self, alive_replicas: set[str]) -> list[SpareRow]:
         """Forget spares whose server is gone (the next `fill` replaces them); watch from here
-        those of replicas that are gone, where they can be reached (a cluster's)."""
+        those of replicas that are gone, where they can be reached (a cluster's). Returns the
+        spares still listed."""
         rows = await self.registry.rows()
+        kept = list(rows)
         listed = {row.id for row in rows}
         for spare_id in [s for s in self.handles if s not in listed]:
             self._let_go(self.handles.pop(spare_id))  # another replica gave it to a worker
@@ -147,12 +155,14 @@ class SparePool:
             if handle is None or not self.launcher.alive(handle):
                 self.handles.pop(row.id, None)
                 await self.registry.remove(row.id)
+                kept.remove(row)
                 log.info("spare %s is gone", row.id)
                 continue
             self.handles[row.id] = handle
             if not mine:
                 await self.registry.watch(row.id)
                 log.info("spare %s of %s is watched from here now", row.id, row.replica)
+        return kept
 
     async def forget_unstarted(self) -> None:
         """At start: this replica's spares a previous run left starting never will."""

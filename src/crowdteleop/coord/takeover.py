@@ -19,11 +19,9 @@ from crowdteleop.coord.shared_limits import SHARED_WINDOW_S, forget_old
 log = logging.getLogger(__name__)
 
 
-async def adopt(coordinator: Coordinator) -> list[str]:
-    """Take over the sessions no live replica watches; returns their ids."""
+async def adopt(coordinator: Coordinator, alive: set[str]) -> list[str]:
+    """Take over the sessions no live replica (of `alive`) watches; returns their ids."""
     replicas = coordinator.replicas
-    await replicas.beat()
-    alive = await replicas.alive()
     orphaned = [
         s
         for s in await coordinator.store.live_sessions()
@@ -69,8 +67,11 @@ async def reconcile(coordinator: Coordinator) -> None:
 
 
 async def sweep_shared_state(coordinator: Coordinator) -> None:
-    await adopt(coordinator)
+    await coordinator.replicas.beat()
+    alive = await coordinator.replicas.alive()
+    await adopt(coordinator, alive)
     await reconcile(coordinator)
-    await coordinator.spares.sweep(await coordinator.replicas.alive())
-    coordinator.spares.fill(coordinator.configs.spare_keys())  # replace spares that went
+    spares = coordinator.spares
+    listed = await spares.sweep(alive)
+    spares.fill(spares.short(coordinator.configs.spare_keys(), listed))  # replace those gone
     await forget_old(coordinator.store.transactions, SHARED_WINDOW_S)
