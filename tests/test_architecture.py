@@ -1,6 +1,5 @@
 """The layout is the architecture (docs/architecture.md): packages import only downward, no
-module imports itself round a circle, no file outgrows 400 lines, and the coordinator runs
-without the simulator."""
+module imports itself round a circle, and the coordinator runs without the simulator."""
 
 from __future__ import annotations
 
@@ -151,15 +150,6 @@ def test_the_rules_catch_an_arrow_up_and_a_circle():
     }
     assert _upward(bad) == ["crowdteleop.sim.config -> crowdteleop.teleop.config"]
     assert any("crowdteleop.sim.config" in circle for circle in _circles(bad))
-
-
-def test_every_source_file_is_under_400_lines():
-    long = {
-        str(path.relative_to(SRC)): n
-        for path in [*PACKAGE.rglob("*.py"), *PACKAGE.rglob("*.js")]
-        if "vendor" not in path.parts and (n := len(path.read_text().splitlines())) >= 400
-    }
-    assert not long, f"split these by concern: {long}"
 
 
 @pytest.mark.parametrize("module", ["crowdteleop.coord.app", "crowdteleop.cli"])
