@@ -27,8 +27,7 @@ from av import VideoFrame
 
 from crowdteleop.client.latency import FrameMatcher, LatencyTracker
 from crowdteleop.client.receiver import complete_frames_on_marker
-from crowdteleop.teleop.ice import IceServer
-from crowdteleop.teleop.messages import OfferAnswer, OfferRequest
+from crowdteleop.teleop.messages import IceServer, OfferAnswer, OfferRequest
 from crowdteleop.teleop.peering import rtc_ice_servers
 from crowdteleop.teleop.protocol import (
     PROTOCOL_VERSION,

@@ -13,7 +13,7 @@ from crowdteleop.coord.ray_launcher import RayLauncherConfig
 from crowdteleop.coord.security import ADMIN_TOKEN_MIN_BITS, estimated_entropy_bits
 from crowdteleop.coord.turn import TurnConfig
 from crowdteleop.recording.metadata import RegionName
-from crowdteleop.teleop.ice import IceServer, IceTransportPolicy
+from crowdteleop.teleop.messages import IceServer, IceTransportPolicy
 
 
 class AdmissionConfig(BaseModel):

@@ -7,7 +7,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from crowdteleop.recording.metadata import RegionName, RoundTripMs
-from crowdteleop.teleop.ice import IceServer, IceTransportPolicy
+from crowdteleop.teleop.messages import IceServer, IceTransportPolicy
 from crowdteleop.vocab import Outcome, WorkerDevice
 
 SessionState = Literal["queued", "starting", "ready", "ended"]

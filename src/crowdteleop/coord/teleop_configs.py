@@ -11,8 +11,7 @@ from crowdteleop.coord.spare_registry import SpareKey
 from crowdteleop.coord.tables import Session
 from crowdteleop.coord.turn import turn_credentials
 from crowdteleop.teleop.config import TeleopConfig
-from crowdteleop.teleop.ice import IceServer
-from crowdteleop.teleop.messages import Assignment
+from crowdteleop.teleop.messages import Assignment, IceServer
 
 
 def deep_merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:

@@ -12,7 +12,7 @@ import hmac
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from crowdteleop.teleop.ice import IceServer
+from crowdteleop.teleop.messages import IceServer
 
 
 class TurnConfig(BaseModel):

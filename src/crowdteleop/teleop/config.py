@@ -13,7 +13,7 @@ from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.recording.stores import StorageConfig, open_storage
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.tasks import get_task
-from crowdteleop.teleop.ice import IceServer
+from crowdteleop.teleop.messages import IceServer
 from crowdteleop.vocab import CONTROLLERS, action_mode_for
 
 Codec = Literal["vp8", "h264"]

@@ -2,7 +2,9 @@
 
 Both processes import these models: the coordinator builds an `Assignment` and an `OfferRequest`
 and reads an `OfferAnswer`; the teleop server validates the first two and sends `EpisodeReport`s.
-Importing this module loads no simulator (pydantic and the vocabularies only).
+The STUN and TURN servers (`IceServer`) travel in a server's config and assignment and on to
+the pages and the Python client. Importing this module loads no simulator (pydantic and the
+vocabularies only).
 """
 
 from __future__ import annotations
@@ -11,10 +13,9 @@ import math
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from crowdteleop.recording.metadata import RegionChoice
-from crowdteleop.teleop.ice import IceServer
 from crowdteleop.teleop.protocol import PeerRole
 from crowdteleop.vocab import DeviceKind, Outcome
 
@@ -30,6 +31,39 @@ MAX_TELEMETRY_DEPTH = 8
 StepCount = Annotated[int, Field(ge=0, le=MAX_EPISODE_STEPS)]
 EpisodeNumber = Annotated[int, Field(ge=0, le=MAX_EPISODE_NUMBER)]
 EpisodeDurationS = Annotated[float, Field(ge=0, le=MAX_EPISODE_DURATION_S, allow_inf_nan=False)]
+
+IceTransportPolicy = Literal["all", "relay"]  # WebRTC's RTCIceTransportPolicy
+
+
+class IceServer(BaseModel):
+    """A STUN or TURN server as WebRTC's `RTCIceServer` describes it: URLs, and for TURN the
+    username and credential. One model from the coordinator's settings through the teleop
+    server's config to the pages (`SessionView.ice_servers`) and the Python client; a bare URL
+    string is read as a server without credentials, so configs written before still load."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    urls: list[str] = Field(min_length=1, description="stun:, turn: or turns: URLs")
+    username: str | None = Field(None, max_length=512)
+    credential: str | None = Field(None, max_length=512)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_url(cls, data: Any) -> Any:
+        if isinstance(data, str):
+            return {"urls": [data]}
+        if isinstance(data, dict) and isinstance(data.get("urls"), str):
+            return {**data, "urls": [data["urls"]]}
+        return data
+
+    @model_validator(mode="after")
+    def _known_schemes(self) -> IceServer:
+        for url in self.urls:
+            if not url.startswith(("stun:", "turn:", "turns:")):
+                raise ValueError(
+                    f"an ICE server URL starts with stun:, turn: or turns:, got {url!r}"
+                )
+        return self
 
 
 class OfferRequest(BaseModel):

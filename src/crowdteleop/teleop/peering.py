@@ -23,8 +23,7 @@ from pydantic import BaseModel
 
 from crowdteleop.teleop.config import LimitsConfig, VideoConfig
 from crowdteleop.teleop.guard import InboundGuard
-from crowdteleop.teleop.ice import IceServer
-from crowdteleop.teleop.messages import OfferRequest
+from crowdteleop.teleop.messages import IceServer, OfferRequest
 from crowdteleop.teleop.peers import Peer
 from crowdteleop.teleop.remb import RembTap
 from crowdteleop.teleop.video import FrameSource, SimVideoTrack
