@@ -90,3 +90,46 @@ def test_a_bad_option_is_named_in_the_error():
     output = " ".join((run.stdout + run.stderr).split())  # rich wraps long lines
     assert "token: String should have at least 8 characters" in output
     assert "Traceback" not in output
+
+
+# What `crowdteleop serve` runs: the command line resolving `serve`, then the app it serves.
+SERVE_PATH = """
+import sys
+from crowdteleop.cli import app
+try:
+    app(["serve", "--help"], prog_name="crowdteleop")
+except SystemExit:
+    pass
+import crowdteleop.coord.app
+heavy = ("scipy", "mujoco", "robosuite", "h5py", "torch")
+print("LOADED:" + ",".join(name for name in heavy if name in sys.modules))
+"""
+
+
+def test_serve_loads_neither_scipy_nor_the_simulator():
+    """The dataset and learn commands are listed without importing them, so a coordinator
+    on a small machine in front of a cluster starts without scipy, MuJoCo or torch."""
+    run = subprocess.run(
+        [sys.executable, "-c", SERVE_PATH], capture_output=True, text=True, timeout=120
+    )
+    assert run.returncode == 0, run.stderr
+    assert "crowdteleop serve" in run.stdout, "the serve command was reached"
+    [loaded] = [line for line in run.stdout.splitlines() if line.startswith("LOADED:")]
+    assert loaded == "LOADED:", f"`crowdteleop serve` imported {loaded.removeprefix('LOADED:')}"
+
+
+def test_the_deferred_command_groups_load_when_run_and_say_what_they_do():
+    import importlib
+
+    import typer.main
+    from typer.testing import CliRunner
+
+    from crowdteleop.cli import DEFERRED_GROUPS, app
+
+    for name, (target, help_text) in DEFERRED_GROUPS.items():
+        module, _, attribute = target.partition(":")
+        group = typer.main.get_group(getattr(importlib.import_module(module), attribute))
+        assert group.help == help_text, f"the listing's help of {name} is its own"
+        listed = CliRunner().invoke(app, [name, "--help"])
+        assert listed.exit_code == 0, listed.output
+        assert all(command in listed.output for command in group.commands), listed.output

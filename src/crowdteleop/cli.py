@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import contextlib
+import importlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
+import typer.main
 from pydantic import ValidationError
 from pydantic_core import ErrorDetails
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
+from typer.core import TyperGroup
 
+from crowdteleop.coord.cli import serve  # typer only: its imports are inside the command
 from crowdteleop.errors import CrowdteleopError
 from crowdteleop.tasks import TASKS
 from crowdteleop.vocab import ControllerName
@@ -20,7 +24,51 @@ from crowdteleop.vocab import ControllerName
 if TYPE_CHECKING:  # `crowdteleop --help` loads no simulator
     from crowdteleop.control.scripted import EpisodeResult
 
-app = typer.Typer(help="crowdteleop: crowdsourced robot teleoperation.", no_args_is_help=True)
+# Command groups whose modules are imported only when one of their commands runs (or shows its
+# own help): `crowdteleop serve`, `tasks` and `--help` never load scipy, MuJoCo or torch.
+DEFERRED_GROUPS = {
+    "dataset": (
+        "crowdteleop.dataset.cli:app",
+        "Build, replay, summarize and export demonstration datasets.",
+    ),
+    "learn": ("crowdteleop.learn.cli:app", "Train policies on datasets and evaluate them."),
+}
+
+
+class _DeferredGroup(TyperGroup):
+    """Stands in for a command group in the listing; the group itself is imported when the
+    command line reaches it (`make_context`, which parses and then runs it)."""
+
+    def __init__(self, name: str, target: str, help_text: str) -> None:
+        super().__init__(name=name, help=help_text)
+        self.target = target
+
+    def load(self) -> TyperGroup:
+        module, _, attribute = self.target.partition(":")
+        group = typer.main.get_group(getattr(importlib.import_module(module), attribute))
+        group.name = self.name
+        return group
+
+    def make_context(
+        self, info_name: str | None, args: list[str], parent: Any = None, **extra: Any
+    ) -> Any:
+        return self.load().make_context(info_name, args, parent=parent, **extra)
+
+
+class CrowdteleopCommands(TyperGroup):
+    """The top-level commands, with the deferred groups added after the eager ones."""
+
+    def __init__(self, **attrs: Any) -> None:
+        super().__init__(**attrs)
+        for name, (target, help_text) in DEFERRED_GROUPS.items():
+            self.add_command(_DeferredGroup(name, target, help_text))
+
+
+app = typer.Typer(
+    help="crowdteleop: crowdsourced robot teleoperation.",
+    no_args_is_help=True,
+    cls=CrowdteleopCommands,
+)
 console = Console()
 
 
@@ -254,14 +302,4 @@ def _read_json(path: Path) -> dict[str, Any]:
     return fields
 
 
-from crowdteleop.coord.cli import serve as _serve  # noqa: E402  (registered last, see coord/cli.py)
-
-app.command("serve")(_serve)
-
-from crowdteleop.dataset.cli import app as dataset_app  # noqa: E402  (registered last)
-
-app.add_typer(dataset_app, name="dataset")
-
-from crowdteleop.learn.cli import app as learn_app  # noqa: E402  (registered last)
-
-app.add_typer(learn_app, name="learn")
+app.command("serve")(serve)  # listed after the teleop commands
