@@ -36,7 +36,9 @@ class CrowdSettings:
     # then leave (no completion code expected).
     window_s: float | None = None
     warmup_s: float = 5.0
-    start_gate: Path | None = None  # the window starts when this file exists (all bots ready)
+    # The window starts when this file exists (all bots ready); without a window, the bots
+    # start driving then (a test decides when the demonstrations begin, not the clock).
+    start_gate: Path | None = None
 
 
 @dataclass
@@ -124,6 +126,8 @@ async def _one_robot(
         if report.first_frame_s is None:
             report.first_frame_s = time.monotonic() - joined_at
         bot = Bot(driver, seed=index + 1000 * report.reconnects, observer=observer)
+        if settings.window_s is None:
+            await _wait_for_gate(settings.start_gate)
         streaming = asyncio.create_task(bot.stream(30.0))
         try:
             if settings.window_s is not None:
@@ -145,7 +149,8 @@ async def _one_robot(
 
 
 async def _wait_for_gate(gate: Path | None) -> None:
-    """A load test's bots measure the same window: it opens when every robot is live."""
+    """A load test's bots measure the same window, and a test's bots begin their
+    demonstrations together: the gate opens when every robot is live."""
     while gate is not None and not gate.exists():
         await asyncio.sleep(0.1)
 
