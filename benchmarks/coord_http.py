@@ -30,8 +30,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from crowdteleop.coord.app import create_app  # noqa: E402
-from crowdteleop.coord.config import CoordConfig  # noqa: E402
-from crowdteleop.coord.http_limits import listening_socket, uvicorn_options  # noqa: E402
+from crowdteleop.coord.guard.http_limits import listening_socket, uvicorn_options  # noqa: E402
+from crowdteleop.coord.service.config import CoordConfig  # noqa: E402
 
 PATHS = ("/health", "/api/ping", "/api/campaigns/default")
 ADMIN = "bench-admin-token-0123456789abcdef"

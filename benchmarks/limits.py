@@ -17,7 +17,7 @@ import argparse
 import statistics
 import time
 
-from crowdteleop.coord.limits import WindowLimiter
+from crowdteleop.coord.guard.limits import WindowLimiter
 
 
 def one_run(keys: int) -> dict[str, float]:

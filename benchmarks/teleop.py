@@ -29,7 +29,7 @@ import psutil
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.fixtures.ready import wait_ready
 
-from crowdteleop.coord.launcher import teleop_server_argv
+from crowdteleop.coord.fleet.launcher import teleop_server_argv
 
 TOKEN = "bench-token-1"
 ADMIN = "bench-admin-1"

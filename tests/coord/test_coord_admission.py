@@ -12,7 +12,7 @@ import httpx
 import pytest
 
 from crowdteleop.coord.app import create_app
-from crowdteleop.coord.config import CoordConfig
+from crowdteleop.coord.service.config import CoordConfig
 from tests.fixtures.coord import ADMIN, FakeLauncher, coord_config, served_app
 
 PROXY = {"trusted_proxies": ["127.0.0.1"]}

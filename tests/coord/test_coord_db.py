@@ -11,10 +11,10 @@ from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import create_engine, inspect
 
-from crowdteleop.coord.campaign import CampaignConfig
-from crowdteleop.coord.db import make_engine, migrate, migrate_sync, sync_url
-from crowdteleop.coord.store import Store
-from crowdteleop.coord.tables import Base, Episode, Session
+from crowdteleop.coord.db.engine import make_engine, migrate, migrate_sync, sync_url
+from crowdteleop.coord.db.store import Store
+from crowdteleop.coord.db.tables import Base, Episode, Session
+from crowdteleop.coord.service.campaign import CampaignConfig
 
 
 def _run(coroutine):
@@ -215,7 +215,7 @@ def test_live_sessions_keep_queue_order_and_updates_respect_state(database_url):
 
 
 def test_unsupported_database_urls_say_what_is_supported():
-    from crowdteleop.coord.db import DatabaseUrlError
+    from crowdteleop.coord.db.engine import DatabaseUrlError
 
     with pytest.raises(DatabaseUrlError, match="sqlite:///FILE or postgresql"):
         sync_url("mysql://root@localhost/test")

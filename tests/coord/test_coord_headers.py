@@ -10,8 +10,8 @@ from html.parser import HTMLParser
 import pytest
 from fastapi.testclient import TestClient
 
+from crowdteleop.coord.api.pages import PAGES, STATIC
 from crowdteleop.coord.app import create_app
-from crowdteleop.coord.pages import PAGES, STATIC
 from tests.fixtures.coord import ADMIN, Api, FakeLauncher, coord_config, in_process_app
 
 pytestmark = pytest.mark.filterwarnings("ignore:Using `httpx`")

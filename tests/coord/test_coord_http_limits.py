@@ -20,7 +20,7 @@ import pytest
 from fastapi import FastAPI, Request
 
 from crowdteleop.coord.app import create_app
-from crowdteleop.coord.http_limits import uvicorn_options
+from crowdteleop.coord.guard.http_limits import uvicorn_options
 from tests.fixtures.coord import FakeLauncher, coord_config, served_app
 
 TIMEOUT_S = 1.5
@@ -184,7 +184,7 @@ def _status_within(url: str, status: int, limit_s: float) -> bool:
 def test_connections_to_the_coordinators_listener_send_without_waiting_for_acks():
     """Nagle off (TCP_NODELAY) on every accepted connection: with it on, each request on a
     kept-alive connection waited ~40 ms for the client's delayed ACK (benchmarks/coord_http.py)."""
-    from crowdteleop.coord.http_limits import listening_socket
+    from crowdteleop.coord.guard.http_limits import listening_socket
 
     async def accepted_nodelay() -> int:
         seen: asyncio.Future[int] = asyncio.get_running_loop().create_future()

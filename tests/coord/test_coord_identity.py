@@ -60,7 +60,7 @@ def test_without_a_live_session_the_same_study_id_joins_from_anywhere(tmp_path):
 
 
 def _events(client, sid: str) -> list[dict]:
-    from crowdteleop.coord.service import Coordinator
+    from crowdteleop.coord.service.coordinator import Coordinator
 
     coordinator: Coordinator = client.app_state.coordinator
     portal = client.portal  # the TestClient's event loop thread

@@ -3,10 +3,10 @@ the coordinator launches one or hands over a warm spare (built before anyone's c
 
 from __future__ import annotations
 
-from crowdteleop.coord.config import CoordConfig
-from crowdteleop.coord.session_keys import SessionKeys
-from crowdteleop.coord.tables import Session
-from crowdteleop.coord.teleop_configs import TeleopConfigs, assignment_of
+from crowdteleop.coord.db.tables import Session
+from crowdteleop.coord.guard.session_keys import SessionKeys
+from crowdteleop.coord.service.config import CoordConfig
+from crowdteleop.coord.service.teleop_configs import TeleopConfigs, assignment_of
 from crowdteleop.teleop.assign import assigned_config
 from tests.fixtures.coord import ADMIN
 

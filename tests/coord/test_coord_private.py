@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from crowdteleop.coord.db import migrate_sync
-from crowdteleop.coord.private import write_private
+from crowdteleop.coord.db.engine import migrate_sync
+from crowdteleop.coord.guard.private import write_private
 from tests.fixtures.coord import OFFER_SDP, Api, FakeLauncher, coord_config, in_process_app
 
 pytestmark = pytest.mark.filterwarnings("ignore:Using `httpx`")
@@ -107,7 +107,7 @@ def test_what_an_earlier_run_left_readable_is_tightened_and_logged(tmp_path, cap
             path.chmod(0o644)
         for folder in (data, data / "sessions", left):
             folder.chmod(0o755)
-        caplog.set_level(logging.WARNING, logger="crowdteleop.coord.private")
+        caplog.set_level(logging.WARNING, logger="crowdteleop.coord.guard.private")
         with in_process_app(coord_config(tmp_path, database_url=url), FakeLauncher()) as client:
             assert client.get("/health").status_code == 200
         assert mode(database) == mode(database.with_name("coord.sqlite3-wal")) == 0o600

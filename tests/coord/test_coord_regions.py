@@ -7,8 +7,8 @@ from __future__ import annotations
 import pytest
 from pydantic import ValidationError
 
-from crowdteleop.coord.config import CoordConfig
-from crowdteleop.coord.teleop_configs import assignment_of
+from crowdteleop.coord.service.config import CoordConfig
+from crowdteleop.coord.service.teleop_configs import assignment_of
 from crowdteleop.recording.metadata import RegionChoice
 from crowdteleop.teleop.assign import assigned_config
 from tests.fixtures.coord import ADMIN, Api, FakeLauncher, coord_config, in_process_app

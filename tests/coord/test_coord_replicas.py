@@ -176,10 +176,10 @@ async def racing_replicas(
     ever holding a slot, the sessions launched (once per launch), the first three asking."""
     import asyncio
 
-    from crowdteleop.coord.db import make_engine, migrate
-    from crowdteleop.coord.service import Coordinator
-    from crowdteleop.coord.session_keys import SessionKeys
-    from crowdteleop.coord.store import Store
+    from crowdteleop.coord.db.engine import make_engine, migrate
+    from crowdteleop.coord.db.store import Store
+    from crowdteleop.coord.guard.session_keys import SessionKeys
+    from crowdteleop.coord.service.coordinator import Coordinator
 
     await migrate(database)
     tmp_path.mkdir(parents=True, exist_ok=True)

@@ -7,7 +7,7 @@ import stat
 
 import pytest
 
-from crowdteleop.coord.session_keys import SessionKeys, SessionSecretError
+from crowdteleop.coord.guard.session_keys import SessionKeys, SessionSecretError
 
 
 def test_tokens_are_stable_across_starts_and_distinct_per_session_and_purpose(tmp_path):

@@ -11,12 +11,12 @@ import asyncio
 import time
 from pathlib import Path
 
-from crowdteleop.coord.cluster import follow_cluster
-from crowdteleop.coord.db import make_engine, migrate
-from crowdteleop.coord.service import Coordinator
-from crowdteleop.coord.session_keys import SessionKeys
-from crowdteleop.coord.store import Store
-from crowdteleop.coord.takeover import sweep_shared_state
+from crowdteleop.coord.db.engine import make_engine, migrate
+from crowdteleop.coord.db.store import Store
+from crowdteleop.coord.fleet.cluster import follow_cluster
+from crowdteleop.coord.guard.session_keys import SessionKeys
+from crowdteleop.coord.service.coordinator import Coordinator
+from crowdteleop.coord.service.replication import sweep_shared_state
 from tests.fixtures.coord import FakeCluster, coord_config
 
 SLOTS = 4

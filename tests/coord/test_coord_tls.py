@@ -16,7 +16,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from crowdteleop.coord.tls import local_names, self_signed
+from crowdteleop.coord.guard.tls import local_names, self_signed
 from tests.fixtures.coord import coord_server
 
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from crowdteleop.coord.launcher import teleop_server_argv
+from crowdteleop.coord.fleet.launcher import teleop_server_argv
 from tests.fixtures import link_client
 from tests.fixtures.teleop_process import ADMIN_TOKEN, TOKEN, teleop_config
 

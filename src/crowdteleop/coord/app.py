@@ -13,31 +13,24 @@ import aiohttp
 from fastapi import Depends, FastAPI, Request
 from fastapi.responses import Response
 
-from crowdteleop.coord import (
-    api_admin,
-    api_internal,
-    api_pairing,
-    api_regions,
-    api_sessions,
-    pages,
-)
-from crowdteleop.coord.cluster import follow_cluster
-from crowdteleop.coord.config import CoordConfig
-from crowdteleop.coord.db import make_engine, migrate
-from crowdteleop.coord.deps import require_admin
-from crowdteleop.coord.errors import BodyLimitMiddleware, install_error_handlers
-from crowdteleop.coord.guards import Guards
-from crowdteleop.coord.headers import SecurityHeadersMiddleware
-from crowdteleop.coord.http_limits import BodyTimeoutMiddleware
-from crowdteleop.coord.launcher import Launcher, LocalProcessLauncher
-from crowdteleop.coord.liveness import run_liveness
-from crowdteleop.coord.metrics import CoordMetrics
-from crowdteleop.coord.private import prepare_data_dir
-from crowdteleop.coord.reaper import run_reaper
-from crowdteleop.coord.service import Coordinator
-from crowdteleop.coord.session_keys import SESSION_SECRET_FILE, SessionKeys
-from crowdteleop.coord.spools import run_spool_sweeper
-from crowdteleop.coord.store import Store
+from crowdteleop.coord.api import admin, internal, pages, pairing, regions, sessions
+from crowdteleop.coord.api.deps import require_admin
+from crowdteleop.coord.db.engine import make_engine, migrate
+from crowdteleop.coord.db.store import Store
+from crowdteleop.coord.fleet.cluster import follow_cluster
+from crowdteleop.coord.fleet.launcher import Launcher, LocalProcessLauncher
+from crowdteleop.coord.guard.errors import BodyLimitMiddleware, install_error_handlers
+from crowdteleop.coord.guard.headers import SecurityHeadersMiddleware
+from crowdteleop.coord.guard.http_limits import BodyTimeoutMiddleware
+from crowdteleop.coord.guard.private import prepare_data_dir
+from crowdteleop.coord.guard.session_keys import SESSION_SECRET_FILE, SessionKeys
+from crowdteleop.coord.service.config import CoordConfig
+from crowdteleop.coord.service.coordinator import Coordinator
+from crowdteleop.coord.service.guards import Guards
+from crowdteleop.coord.service.liveness import run_liveness
+from crowdteleop.coord.service.metrics import CoordMetrics
+from crowdteleop.coord.service.reaper import run_reaper
+from crowdteleop.coord.service.spools import run_spool_sweeper
 from crowdteleop.web import qr
 
 log = logging.getLogger(__name__)
@@ -45,7 +38,7 @@ log = logging.getLogger(__name__)
 
 def _launcher(config: CoordConfig) -> Launcher:
     if config.ray is not None:
-        from crowdteleop.coord.ray_launcher import RayLauncher
+        from crowdteleop.coord.fleet.ray_launcher import RayLauncher
 
         return RayLauncher(config.ray, config.teleop_host)
     return LocalProcessLauncher(
@@ -106,11 +99,11 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         SecurityHeadersMiddleware, docs_paths=docs_pages, connect_origins=config.region_origins()
     )
     install_error_handlers(app)
-    app.include_router(api_sessions.router)
-    app.include_router(api_regions.router)
-    app.include_router(api_pairing.router)
-    app.include_router(api_admin.router)
-    app.include_router(api_internal.router)
+    app.include_router(sessions.router)
+    app.include_router(regions.router)
+    app.include_router(pairing.router)
+    app.include_router(admin.router)
+    app.include_router(internal.router)
     app.include_router(pages.router)
     _include_web_routers(app)
     app.include_router(qr.router)

@@ -14,7 +14,7 @@ import typer
 if TYPE_CHECKING:
     import uvicorn
 
-    from crowdteleop.coord.config import CoordConfig
+    from crowdteleop.coord.service.config import CoordConfig
 
 TlsFiles = tuple[Path, Path]
 
@@ -113,12 +113,12 @@ class ServeOptions:
 
 def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFiles | None]:
     """The config, the bound listening sockets (public, then internal if any), TLS files."""
-    from crowdteleop.coord.campaign import load_campaigns
-    from crowdteleop.coord.config import CoordConfig
-    from crowdteleop.coord.http_limits import listening_socket
-    from crowdteleop.coord.private import private_dir
-    from crowdteleop.coord.replicas import default_replica_name
-    from crowdteleop.coord.tls import local_names, self_signed
+    from crowdteleop.coord.db.replicas import default_replica_name
+    from crowdteleop.coord.guard.http_limits import listening_socket
+    from crowdteleop.coord.guard.private import private_dir
+    from crowdteleop.coord.guard.tls import local_names, self_signed
+    from crowdteleop.coord.service.campaign import load_campaigns
+    from crowdteleop.coord.service.config import CoordConfig
 
     main = listening_socket(o.host, o.port)
     bound = main.getsockname()[1]
@@ -179,7 +179,7 @@ async def _run(
     import uvicorn
 
     from crowdteleop.coord.app import create_app
-    from crowdteleop.coord.http_limits import uvicorn_options
+    from crowdteleop.coord.guard.http_limits import uvicorn_options
 
     app = create_app(settings)
     certificate, key = (str(tls[0]), str(tls[1])) if tls else (None, None)

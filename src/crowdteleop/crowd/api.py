@@ -11,7 +11,7 @@ from urllib.parse import parse_qs, urlsplit
 import aiohttp
 from pydantic import BaseModel
 
-from crowdteleop.coord.schemas import (
+from crowdteleop.coord.api.schemas import (
     JoinRequest,
     JoinResponse,
     OfferBody,

@@ -1,0 +1,30 @@
+"""What teleop servers tell the coordinator: each stored episode (bearer = report token)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter
+
+from crowdteleop.coord.api.deps import CoordinatorDep, Credentials, token_of
+from crowdteleop.coord.api.schemas import EpisodeAck, ErrorBody
+from crowdteleop.coord.guard.errors import ApiError
+from crowdteleop.coord.service.episodes import report_episode
+from crowdteleop.teleop.messages import EpisodeReport
+
+ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorBody} for code in (401, 403, 422)}
+router = APIRouter(prefix="/internal", tags=["internal"], responses=ERRORS)
+
+
+@router.post("/episodes", response_model=EpisodeAck)
+async def episode_report(
+    report: EpisodeReport, coordinator: CoordinatorDep, credentials: Credentials
+) -> EpisodeAck:
+    """Idempotent by episode_id; successes count toward the session's demos_required."""
+    token = token_of(credentials)
+    session = await coordinator.store.session_by_report_token(token) if token else None
+    if session is None:
+        raise ApiError(401, "unauthorized", "a session's report token is required")
+    if report.session_id != session.id:
+        raise ApiError(403, "wrong_session", "this token reports for another session")
+    return await report_episode(coordinator, session, report)

@@ -1,0 +1,204 @@
+"""Workers: join, get a session, keep it alive, leave, and signal WebRTC to its server."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Body, Path, Query, Request
+
+from crowdteleop.coord.api.deps import (
+    ClientDep,
+    CoordinatorDep,
+    GuardsDep,
+    OwnedSession,
+    SessionId,
+    WorkerDep,
+    owned,
+    token_of,
+    worker_for,
+)
+from crowdteleop.coord.api.deps import Credentials as CredentialsDep
+from crowdteleop.coord.api.regions import region_choice
+from crowdteleop.coord.api.schemas import (
+    CampaignView,
+    ErrorBody,
+    HeartbeatRequest,
+    JoinRequest,
+    JoinResponse,
+    OfferBody,
+    RegionView,
+    SessionView,
+)
+from crowdteleop.coord.api.views import session_view
+from crowdteleop.coord.db.store import SessionInUseError
+from crowdteleop.coord.fleet.teleop_http import forward_offer
+from crowdteleop.coord.guard.errors import ApiError
+from crowdteleop.coord.guard.identity import identify
+from crowdteleop.coord.service.campaign import NAME_PATTERN, CampaignConfig
+from crowdteleop.teleop.messages import OfferAnswer
+
+ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorBody} for code in (401, 403, 404, 409, 422, 429, 503)
+}
+router = APIRouter(prefix="/api", tags=["workers"], responses=ERRORS)
+
+
+def campaign_view(campaign: CampaignConfig) -> CampaignView:
+    return CampaignView(
+        name=campaign.name,
+        title=campaign.title,
+        instructions=campaign.instructions,
+        tasks=campaign.tasks,
+        interfaces=campaign.interfaces,
+        demos_required=campaign.demos_required,
+        time_limit_s=campaign.time_limit_s,
+        regions=[RegionView(name=r.name, url=str(r.url)) for r in campaign.regions],
+    )
+
+
+@router.get("/campaigns/{name}", response_model=CampaignView)
+async def campaign(
+    name: Annotated[str, Path(pattern=NAME_PATTERN)], coordinator: CoordinatorDep
+) -> CampaignView:
+    """What the join page shows before anyone agrees: the task, how many demonstrations and
+    how long it takes. `default` is the campaign a link without `campaign=` joins."""
+    chosen = coordinator.config.campaign(name)
+    if chosen is None and name == "default":
+        chosen = coordinator.config.default_campaign
+    if chosen is None:
+        raise ApiError(404, "unknown_campaign", f"no campaign named {name!r}")
+    typical = await coordinator.waits.mean_session_s(-1.0)
+    view = campaign_view(chosen)
+    return view.model_copy(
+        update={
+            "typical_session_s": round(typical) if typical > 0 else None,
+            "region": coordinator.config.region,
+        }
+    )
+
+
+@router.post("/join", response_model=JoinResponse)
+async def join(
+    body: JoinRequest, coordinator: CoordinatorDep, guards: GuardsDep, client: ClientDep
+) -> JoinResponse:
+    """Register (or recognise) the worker a join link names; returns their bearer token.
+
+    Joins are rate limited per address and in total (429). A campaign may refuse links
+    without study ids (403). A study id whose session is open in another browser is refused
+    (409 `in_use`) unless this browser presents its earlier token or asks to take over."""
+    campaign = coordinator.config.campaign(body.campaign)
+    if campaign is None:
+        raise ApiError(404, "unknown_campaign", f"no campaign named {body.campaign!r}")
+    who = identify(body.params)
+    if who.source == "anonymous" and not campaign.allow_anonymous:
+        guards.metrics.refused("anonymous")
+        raise ApiError(
+            403,
+            "study_link_required",
+            "this study is open to its participants only: please use the link your study "
+            "platform (Prolific or MTurk) gave you",
+        )
+    try:
+        region = region_choice(coordinator.config, campaign, body.region_rtts_ms)
+    except ApiError:
+        guards.metrics.refused("unknown_region")
+        raise
+    guards.admit_join(client)
+    try:
+        worker, token, _created = await coordinator.store.join(
+            campaign.name,
+            who.source,
+            who.external_id,
+            who.study_id,
+            who.external_session,
+            body.params,
+            presented_token=body.worker_token,
+            take_over=body.take_over,
+        )
+    except SessionInUseError as exc:
+        guards.metrics.refused("in_use")
+        raise ApiError(
+            409,
+            "in_use",
+            "Your session is open in another browser. Continue there, or take it over here "
+            "(the other one will stop).",
+        ) from exc
+    if region is not None or worker.region is not None:
+        choice = region.model_dump() if region is not None else None
+        await coordinator.store.set_worker_region(worker.id, choice)
+    guards.metrics.joins.labels(source=who.source).inc()
+    return JoinResponse(
+        worker_id=worker.id,
+        worker_token=token,
+        source=who.source,
+        campaign=campaign_view(campaign),
+    )
+
+
+@router.post("/sessions", response_model=SessionView)
+async def create_session(
+    worker: WorkerDep, coordinator: CoordinatorDep, client: ClientDep
+) -> SessionView:
+    """The worker's live session, or a new one: ready soon, or queued when the pool is full.
+    A new one is refused when its network has too many open (429), the queue is full or the
+    wait too long (503, with Retry-After)."""
+    campaign = coordinator.config.campaign(worker.campaign) or coordinator.config.default_campaign
+    tag = coordinator.keys.client_tag(client)
+    session = await coordinator.create_session(worker, campaign, tag)
+    return await session_view(coordinator, session, worker)
+
+
+@router.get("/sessions/{session_id}", response_model=SessionView)
+async def get_session(
+    session: OwnedSession, worker: WorkerDep, coordinator: CoordinatorDep
+) -> SessionView:
+    return await session_view(coordinator, session, worker)
+
+
+@router.post("/sessions/{session_id}/heartbeat", response_model=SessionView)
+async def heartbeat(
+    session: OwnedSession,
+    worker: WorkerDep,
+    coordinator: CoordinatorDep,
+    body: Annotated[HeartbeatRequest | None, Body()] = None,
+) -> SessionView:
+    """Keeps the session (or its place in the queue); silence ends it as abandoned."""
+    await coordinator.heartbeat(session, body.interface if body else None)
+    refreshed = await coordinator.store.session(session.id) or session
+    return await session_view(coordinator, refreshed, worker)
+
+
+@router.post("/sessions/{session_id}/leave", response_model=SessionView)
+async def leave(
+    session_id: SessionId,
+    coordinator: CoordinatorDep,
+    credentials: CredentialsDep,
+    token: Annotated[
+        str | None, Query(max_length=512, description="for sendBeacon, which sets no headers")
+    ] = None,
+) -> SessionView:
+    """End the session now and free its slot (the page calls this on pagehide)."""
+    worker = await worker_for(coordinator, token_of(credentials) or token)
+    session = await owned(coordinator, session_id, worker)
+    return await _end(coordinator, session.id, worker)
+
+
+@router.delete("/sessions/{session_id}", response_model=SessionView)
+async def delete_session(
+    session: OwnedSession, worker: WorkerDep, coordinator: CoordinatorDep
+) -> SessionView:
+    return await _end(coordinator, session.id, worker)
+
+
+async def _end(coordinator: CoordinatorDep, session_id: str, worker: WorkerDep) -> SessionView:
+    await coordinator.end(session_id, "left")
+    session = await coordinator.store.session(session_id)
+    assert session is not None
+    return await session_view(coordinator, session, worker)
+
+
+@router.post("/sessions/{session_id}/offer", response_model=OfferAnswer)
+async def offer(body: OfferBody, session: OwnedSession, request: Request) -> OfferAnswer:
+    """WebRTC offer for the session's teleop server (role worker); 409 until it is ready."""
+    token = request.app.state.coordinator.keys.teleop_token(session.id)
+    return await forward_offer(request.app.state.http, session, token, body, "worker")
