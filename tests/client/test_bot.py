@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from typing import Any
 
 
@@ -103,3 +105,17 @@ def test_a_bot_through_a_practice_round_records_episode_one_only(tmp_path):
     assert [episode.episode for episode in episodes] == [1]
     assert (status.practice, status.practice_reached) == ("done", False)
     assert len(stored) == 1, "the practice round left no recording"
+
+
+def test_the_bot_loads_no_simulator():
+    """A bot machine runs many network clients: it reads poses (`sim.types`, plain data) and
+    never steps a robot, so it needs neither MuJoCo nor robosuite. (scipy it does load: the
+    scripted operator turns the virtual phone with scipy's rotations.)"""
+    probe = (
+        "import sys, crowdteleop.client.bot; "
+        "print(','.join(m for m in ('mujoco', 'robosuite', 'mink') if m in sys.modules))"
+    )
+    loaded = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, check=True
+    ).stdout.strip()
+    assert loaded == ""

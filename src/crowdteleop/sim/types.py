@@ -1,17 +1,23 @@
-"""Plain data that crosses the `Simulation` boundary. Quaternions are (x, y, z, w) everywhere."""
+"""Plain data that crosses the `Simulation` boundary. Quaternions are (x, y, z, w) everywhere.
+
+numpy only: a client that merely reads poses (the network bot) loads no simulator. What reads
+these off MuJoCo's arrays is `crowdteleop.sim.mujoco_data`; rotation maths is scipy's, loaded
+by the first `Pose.rotation`.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import mujoco
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial.transform import Rotation
 
 from crowdteleop.errors import InvalidActionError, InvalidStateError
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 
 @dataclass(frozen=True)
@@ -21,20 +27,11 @@ class Pose:
     position: npt.NDArray[np.float64]
     quaternion: npt.NDArray[np.float64]
 
-    @classmethod
-    def from_matrix(
-        cls, position: npt.NDArray[np.float64], rotation_matrix: npt.NDArray[np.float64]
-    ) -> Pose:
-        """From a position and a 3x3 (or flat 9) rotation matrix, as MuJoCo stores them.
-
-        MuJoCo's own conversion: 20x cheaper than scipy's, and it runs every control step.
-        """
-        wxyz = np.empty(4)
-        mujoco.mju_mat2Quat(wxyz, np.asarray(rotation_matrix, dtype=float).reshape(9))
-        return cls(np.array(position, dtype=float), wxyz[[1, 2, 3, 0]])
-
     @property
     def rotation(self) -> Rotation:
+        """The orientation as scipy's `Rotation`, for composing and comparing poses."""
+        from scipy.spatial.transform import Rotation  # the controllers' maths, not the data's
+
         return Rotation.from_quat(self.quaternion)
 
 
@@ -115,18 +112,6 @@ class ActionSpec:
         if not np.all(np.isfinite(action)):
             raise InvalidActionError("action contains NaN or infinity")
         return np.clip(action, self.low, self.high)
-
-
-_STATE = mujoco.mjtState
-FLAT_STATE = _STATE.mjSTATE_TIME | _STATE.mjSTATE_QPOS | _STATE.mjSTATE_QVEL
-
-
-def flat_state(model: mujoco.MjModel, data: mujoco.MjData) -> npt.NDArray[np.float64]:
-    """A new [time, qpos, qvel] vector (robosuite's flattened layout, MuJoCo's own state order),
-    filled by one ``mj_getState`` call: the teleop server takes one every control step."""
-    state = np.empty(1 + model.nq + model.nv)
-    mujoco.mj_getState(model, data, state, FLAT_STATE)
-    return state
 
 
 def validate_state(state: npt.NDArray[np.float64], size: int) -> npt.NDArray[np.float64]:

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from crowdteleop.control.scripted.operator import ScriptedOperator
-from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
 from crowdteleop.tasks import get_task
+
+if TYPE_CHECKING:  # the teleoperator loads the controllers (MuJoCo); a network bot has none
+    from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
 
 # robosuite's demonstration collector ends an episode after this many successful steps.
 SUCCESS_HOLD_STEPS = 10

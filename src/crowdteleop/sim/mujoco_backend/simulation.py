@@ -21,6 +21,7 @@ from crowdteleop.errors import (
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms
 from crowdteleop.sim.mujoco_backend import scene
+from crowdteleop.sim.mujoco_data import flat_state, pose_from_matrix
 from crowdteleop.sim.rendering import CameraRenderer
 from crowdteleop.sim.types import (
     ActionSpec,
@@ -31,7 +32,6 @@ from crowdteleop.sim.types import (
     RobotState,
     StepResult,
     TaskProgress,
-    flat_state,
     validate_state,
 )
 from crowdteleop.tasks import TaskSpec, get_task
@@ -235,10 +235,10 @@ class MujocoSimulation:
         return RobotState(
             joint_positions=data.qpos[self._arm_qpos].copy(),
             joint_velocities=data.qvel[self._arm_dofs].copy(),
-            end_effector=Pose.from_matrix(
+            end_effector=pose_from_matrix(
                 data.site_xpos[self._ee_site_id], data.site_xmat[self._ee_site_id]
             ),
-            base=Pose.from_matrix(data.xpos[self._base_body_id], data.xmat[self._base_body_id]),
+            base=pose_from_matrix(data.xpos[self._base_body_id], data.xmat[self._base_body_id]),
             gripper_closed_fraction=float(np.clip(np.mean(fingers), 0.0, 1.0)),
             end_effector_velocity=self._site_velocity(),
         )
@@ -253,7 +253,7 @@ class MujocoSimulation:
 
     def object_poses(self) -> dict[str, Pose]:
         data = self._data
-        cube = Pose.from_matrix(data.xpos[self._cube_body], data.xmat[self._cube_body])
+        cube = pose_from_matrix(data.xpos[self._cube_body], data.xmat[self._cube_body])
         table = Pose(np.array([0.0, 0.0, scene.TABLE_TOP_Z]), IDENTITY_QUAT.copy())
         return {"cube": cube, "table": table}
 

@@ -17,6 +17,7 @@ from crowdteleop.errors import InvalidStateError, UnknownRobotError
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, touching
 from crowdteleop.sim.fastrender import FastSceneRenderer
+from crowdteleop.sim.mujoco_data import flat_state, pose_from_matrix
 from crowdteleop.sim.robosuite_backend import fast_model, model_fixes, tasks
 from crowdteleop.sim.robosuite_backend.controllers import (
     arm_controller_config,
@@ -33,7 +34,6 @@ from crowdteleop.sim.types import (
     RobotState,
     StepResult,
     TaskProgress,
-    flat_state,
     low_dim_keys,
     validate_state,
 )
@@ -174,10 +174,10 @@ class RobosuiteSimulation:
         return RobotState(
             joint_positions=self._data.qpos[self._arm_qpos_index].copy(),
             joint_velocities=self._data.qvel[self._arm_qvel_index].copy(),
-            end_effector=Pose.from_matrix(
+            end_effector=pose_from_matrix(
                 self._data.site_xpos[self._ee_site_id], self._data.site_xmat[self._ee_site_id]
             ),
-            base=Pose.from_matrix(
+            base=pose_from_matrix(
                 self._data.xpos[self._base_body_id], self._data.xmat[self._base_body_id]
             ),
             gripper_closed_fraction=gripper_closed,

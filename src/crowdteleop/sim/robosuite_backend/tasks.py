@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from crowdteleop.sim.mujoco_data import pose_from_matrix
 from crowdteleop.sim.types import Pose, TaskProgress
 
 
@@ -37,12 +38,12 @@ def hidden_objects(env: Any) -> list[Any]:
 
 def _body_pose(env: Any, body_name: str) -> Pose:
     body_id = env.sim.model.body_name2id(body_name)
-    return Pose.from_matrix(env.sim.data.body_xpos[body_id], env.sim.data.body_xmat[body_id])
+    return pose_from_matrix(env.sim.data.body_xpos[body_id], env.sim.data.body_xmat[body_id])
 
 
 def _site_pose(env: Any, site_name: str) -> Pose:
     site_id = env.sim.model.site_name2id(site_name)
-    return Pose.from_matrix(env.sim.data.site_xpos[site_id], env.sim.data.site_xmat[site_id])
+    return pose_from_matrix(env.sim.data.site_xpos[site_id], env.sim.data.site_xmat[site_id])
 
 
 def object_poses(env: Any) -> dict[str, Pose]:
