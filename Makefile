@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 PYTEST_ARGS ?=
 
-.PHONY: run test lint format bench screenshots clean system-deps
+.PHONY: run test quick lint format bench screenshots clean system-deps
 
 ## Start the coordination server on http://localhost:8000 (prints the URLs to open).
 run: $(STAMP)
@@ -15,10 +15,17 @@ run: $(STAMP)
 ## Install what the tests need and run the whole suite (slow tests included).
 test: $(STAMP)
 	bash scripts/system-deps.sh test  # also starts PostgreSQL if it is down
+	bash scripts/lerobot-venv.sh "$(PY)" >/dev/null  # LeRobot's own venv (cached; set-up, not test time)
 	$(VENV)/bin/ruff check src tests benchmarks
 	$(VENV)/bin/mypy  # src/, as configured in pyproject.toml (strict on the seams)
 	CROWDTELEOP_PYTHON=$(PY) node --test tests/web/  # the pages' JS: schema validator, protocol, latency
 	$(PY) -m pytest $(PYTEST_ARGS)
+
+## The quick loop while coding (~N min): lint, types, and every test not marked slow.
+quick: $(STAMP)
+	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/mypy
+	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks
