@@ -441,7 +441,7 @@ def memory_probe(task: str, robot: str, camera: str, width: int, height: int) ->
     built, reset and has rendered one frame (both kept alive)."""
     import robosuite  # noqa: F401  (part of the baseline for every task)
 
-    import crowdteleop.control
+    import crowdteleop.control  # noqa: F401
     import crowdteleop.sim.robosuite_backend  # noqa: F401
 
     baseline = _rss_mib()

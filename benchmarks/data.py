@@ -31,6 +31,105 @@ from crowdteleop.recording.wal_codec import encode_steps
 app = typer.Typer(add_completion=False)
 
 
+class TimedRecording:
+    """A teleoperator's `step` with the recording lines of ``TeleopSession._step`` around it,
+    timed: the board's raw command on the event loop's side, then (simulation thread) the
+    state before the step, a ``StepRecord`` and ``EpisodeTracker.record``."""
+
+    NAMES = ("step", "record", "step_cpu", "record_cpu", "state_cpu", "raw_cpu")
+
+    def __init__(self, sim: Any, step_once: Any) -> None:
+        self.sim, self.step_once = sim, step_once
+        self.timing = dict.fromkeys(self.NAMES, 0.0)
+        self.records: list[Any] = []  # every recorded step, to time the flusher's packing after
+        self.tracker: Any = None  # this episode's, set by `episode`
+        self.board: Any = None
+
+    def episode(self, tracker: Any) -> None:
+        from crowdteleop.teleop.commands import CommandBoard
+
+        self.tracker, self.board = tracker, CommandBoard()
+
+    def raw_command(self, command: Any) -> tuple[Any, float]:
+        """The phone's pose message to the board, and the raw command read back (on the event
+        loop in TeleopSession.tick) with its CPU seconds."""
+        from crowdteleop.teleop.protocol import PoseCommand
+
+        self.board.apply_pose(
+            "bench",
+            PoseCommand(
+                seq=self.board.last_seq + 1,
+                client_time_ms=1000 * time.time(),
+                device="phone",
+                position=tuple(command.position.tolist()),
+                quaternion=tuple(command.quaternion.tolist()),
+                engaged=command.engaged,
+                gripper=command.gripper_closed,
+            ),
+        )
+        raw_cpu = time.thread_time()
+        raw = self.board.raw_command()
+        return raw, time.thread_time() - raw_cpu
+
+    def __call__(self, command: Any) -> Any:
+        from crowdteleop.teleop.episode import step_record
+
+        raw, raw_cpu = self.raw_command(command)
+        tracker = self.tracker
+        tracker.maybe_start(command.engaged)
+        # from here on as in TeleopSession._step (the simulation thread). Wall windows hold
+        # perf_counter calls only: thread_time is a system call here (~4 us), so the CPU
+        # readings sit outside them and carry that cost themselves.
+        cpu = time.thread_time()
+        wall = time.perf_counter()
+        recording = tracker.recording
+        state = self.sim.get_state() if recording else None
+        state_wall = time.perf_counter()
+        state_cpu = time.thread_time()
+        started_wall, started = time.time(), time.perf_counter()
+        step = self.step_once(command)
+        duration = time.perf_counter() - started
+        record_cpu = time.thread_time()
+        record_wall = time.perf_counter()
+        if recording:
+            record = step_record(tracker.steps, state, step, raw, started_wall, duration)
+            tracker.record(record)
+        end_wall = time.perf_counter()
+        end_cpu = time.thread_time()
+        if recording:  # steps before the clutch is first pressed are not recorded
+            self.records.append(record)
+            timing = self.timing
+            timing["step"] += duration
+            timing["step_cpu"] += record_cpu - state_cpu
+            timing["record"] += (end_wall - record_wall) + (state_wall - wall)
+            timing["record_cpu"] += (end_cpu - record_cpu) + (state_cpu - cpu)
+            timing["state_cpu"] += state_cpu - cpu
+            timing["raw_cpu"] += raw_cpu
+        return step
+
+    def per_step(self, episodes: int, steps: int) -> dict[str, Any]:
+        """The figures per recorded step, with the flusher's packing timed over all of them."""
+        pack_cpu = time.thread_time()
+        for start in range(0, len(self.records), 20):  # one flush a second at 20 Hz
+            encode_steps(self.records[start : start + 20])
+        pack_cpu = time.thread_time() - pack_cpu
+        timing = self.timing
+        return {
+            "episodes": episodes,
+            "steps": steps,
+            "step_ms": 1000 * timing["step"] / steps,
+            "record_us": 1e6 * timing["record"] / steps,
+            "overhead_pct": 100 * timing["record"] / timing["step"],
+            "step_cpu_ms": 1000 * timing["step_cpu"] / steps,
+            "record_cpu_us": 1e6 * timing["record_cpu"] / steps,
+            "overhead_cpu_pct": 100 * timing["record_cpu"] / timing["step_cpu"],
+            "get_state_cpu_us": 1e6 * timing["state_cpu"] / steps,
+            "append_cpu_us": 1e6 * (timing["record_cpu"] - timing["state_cpu"]) / steps,
+            "raw_command_cpu_us": 1e6 * timing["raw_cpu"] / steps,
+            "flusher_pack_cpu_us": 1e6 * pack_cpu / len(self.records),
+        }
+
+
 def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
     """Step time vs recording time, each control step recorded as ``TeleopSession._step`` does.
 
@@ -43,18 +142,13 @@ def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
     """
     from crowdteleop.control.scripted import ScriptedOperator, run_episode
     from crowdteleop.recording.versions import runtime_versions
-    from crowdteleop.teleop.commands import CommandBoard
-    from crowdteleop.teleop.episode import EpisodeTracker, step_record
-    from crowdteleop.teleop.protocol import PoseCommand
+    from crowdteleop.teleop.episode import EpisodeTracker
 
-    names = ("step", "record", "step_cpu", "record_cpu", "state_cpu", "raw_cpu")
-    timing = dict.fromkeys(names, 0.0)
     steps = 0
     paths = []
-    records: list[Any] = []  # every recorded step, to time the flusher's packing after
     with scripted_rig("lift") as rig:
         sim, teleop, control = rig.sim, rig.teleop, rig.control
-        step_once = teleop.step
+        timed = TimedRecording(sim, teleop.step)
         for seed in range(episodes):
             tracker = EpisodeTracker(
                 control_dt=sim.control_dt,
@@ -65,60 +159,13 @@ def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
                     update={"session_id": f"bench-{seed}", "reset_seed": seed}
                 ),
             )
-            board = CommandBoard()
+            timed.episode(tracker)
             operator = ScriptedOperator(sim, control.mapping, seed=seed)
-
-            def recorded_step(command: Any, tracker: Any = tracker, board: Any = board) -> Any:
-                board.apply_pose(
-                    "bench",
-                    PoseCommand(
-                        seq=board.last_seq + 1,
-                        client_time_ms=1000 * time.time(),
-                        device="phone",
-                        position=tuple(command.position.tolist()),
-                        quaternion=tuple(command.quaternion.tolist()),
-                        engaged=command.engaged,
-                        gripper=command.gripper_closed,
-                    ),
-                )
-                raw_cpu = time.thread_time()
-                raw = board.raw_command()  # TeleopSession.tick, on the event loop
-                raw_cpu = time.thread_time() - raw_cpu
-                tracker.maybe_start(command.engaged)
-                # from here on as in TeleopSession._step (the simulation thread). Wall windows
-                # hold perf_counter calls only: thread_time is a system call here (~4 us), so
-                # the CPU readings sit outside them and carry that cost themselves.
-                cpu = time.thread_time()
-                wall = time.perf_counter()
-                recording = tracker.recording
-                state = sim.get_state() if recording else None
-                state_wall = time.perf_counter()
-                state_cpu = time.thread_time()
-                started_wall, started = time.time(), time.perf_counter()
-                step = step_once(command)
-                duration = time.perf_counter() - started
-                record_cpu = time.thread_time()
-                record_wall = time.perf_counter()
-                if recording:
-                    record = step_record(tracker.steps, state, step, raw, started_wall, duration)
-                    tracker.record(record)
-                end_wall = time.perf_counter()
-                end_cpu = time.thread_time()
-                if recording:  # steps before the clutch is first pressed are not recorded
-                    records.append(record)
-                    timing["step"] += duration
-                    timing["step_cpu"] += record_cpu - state_cpu
-                    timing["record"] += (end_wall - record_wall) + (state_wall - wall)
-                    timing["record_cpu"] += (end_cpu - record_cpu) + (state_cpu - cpu)
-                    timing["state_cpu"] += state_cpu - cpu
-                    timing["raw_cpu"] += raw_cpu
-                return step
-
-            teleop.step = recorded_step  # type: ignore[method-assign]
+            teleop.step = timed  # type: ignore[method-assign]
             try:
                 result = run_episode(teleop, operator, seed)
             finally:
-                teleop.step = step_once  # type: ignore[method-assign]
+                teleop.step = timed.step_once  # type: ignore[method-assign]
             finished = tracker.end("success" if result.success else "timeout")
             assert finished is not None and finished.recorder is not None
             extra = {
@@ -128,24 +175,7 @@ def record(directory: Path, episodes: int) -> tuple[dict[str, Any], list[Path]]:
             }
             paths.append(finished.recorder.finalize(finished.outcome, extra))
             steps += finished.steps
-    pack_cpu = time.thread_time()
-    for start in range(0, len(records), 20):  # one flush a second at 20 Hz
-        encode_steps(records[start : start + 20])
-    pack_cpu = time.thread_time() - pack_cpu
-    return {
-        "episodes": episodes,
-        "steps": steps,
-        "step_ms": 1000 * timing["step"] / steps,
-        "record_us": 1e6 * timing["record"] / steps,
-        "overhead_pct": 100 * timing["record"] / timing["step"],
-        "step_cpu_ms": 1000 * timing["step_cpu"] / steps,
-        "record_cpu_us": 1e6 * timing["record_cpu"] / steps,
-        "overhead_cpu_pct": 100 * timing["record_cpu"] / timing["step_cpu"],
-        "get_state_cpu_us": 1e6 * timing["state_cpu"] / steps,
-        "append_cpu_us": 1e6 * (timing["record_cpu"] - timing["state_cpu"]) / steps,
-        "raw_command_cpu_us": 1e6 * timing["raw_cpu"] / steps,
-        "flusher_pack_cpu_us": 1e6 * pack_cpu / len(records),
-    }, paths
+    return timed.per_step(episodes, steps), paths
 
 
 def upload(paths: list[Path], uploads: int) -> dict[str, Any]:

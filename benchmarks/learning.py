@@ -70,6 +70,64 @@ def run(command: list[str], log: Path) -> float:
     return time.perf_counter() - started
 
 
+def build_datasets(
+    out: Path, tasks: str, demos: int, timings: dict[str, object]
+) -> dict[str, Path]:
+    """A low-dim dataset per task, recorded and built unless it is there already."""
+    datasets = {}
+    for task in tasks.split(","):
+        dataset = out / f"{task}.hdf5"
+        if not dataset.exists():
+            timings[f"record {task}"] = record(task, demos, out / "episodes" / task)
+            build = [*CLI, "dataset", "build", str(out / "episodes" / task), "--output"]
+            timings[f"build {task}"] = run(
+                [*build, str(dataset), "--obs", "low-dim", "--overwrite"], out / "logs" / "build"
+            )
+        datasets[task] = dataset
+        print(task, timings.get(f"record {task}"), flush=True)
+    return datasets
+
+
+Job = tuple[str, list[list[str]]]  # a name and its commands, run one after the other
+
+
+def ppo_jobs(
+    out: Path,
+    datasets: dict[str, Path],
+    seed: int,
+    counts: str,
+    rl_options: list[str],
+    eval_episodes: int,
+) -> list[Job]:
+    """`learn rl` then `learn eval` per task and demonstration count, for one seed."""
+    jobs = []
+    for task, dataset in datasets.items():
+        for count in (int(c) for c in counts.split(",")):
+            runs = out / "ppo" / task / f"demos_{count}"
+            rl = [*CLI, "learn", "rl", "--dataset", str(dataset), "--demos", str(count)]
+            rl += ["--output", str(runs), "--first-seed", str(seed), *rl_options]
+            evaluate = [*CLI, "learn", "eval", str(runs / f"seed_{seed}"), "--sim", "ours"]
+            evaluate += ["--episodes", str(eval_episodes), "--video", "1"]
+            jobs.append((f"ppo-{task}-{count}-{seed}", [rl, evaluate]))
+    return jobs
+
+
+def bc_jobs(
+    out: Path, datasets: dict[str, Path], counts: str, epochs: int, eval_episodes: int
+) -> list[Job]:
+    """`learn bc` then `learn eval` per task and demonstration count (seed 0)."""
+    jobs = []
+    for task, dataset in datasets.items():
+        for count in (int(c) for c in counts.split(",")):
+            target = out / "bc" / task / f"demos_{count}" / "seed_0"
+            bc = [*CLI, "learn", "bc", str(dataset), "--output", str(target)]
+            bc += ["--demos", str(count), "--epochs", str(epochs)]
+            evaluate = [*CLI, "learn", "eval", str(target / "model.pt"), "--sim", "ours"]
+            evaluate += ["--episodes", str(eval_episodes)]
+            jobs.append((f"bc-{task}-{count}", [bc, evaluate]))
+    return jobs
+
+
 @app.command()
 def main(
     out: Path = Path("out/learning"),
@@ -88,40 +146,15 @@ def main(
     out.mkdir(parents=True, exist_ok=True)
     timings: dict[str, object] = {"robosuite lift step ms": robosuite_lift_step_ms()}
     print(f"plain robosuite Lift step: {timings['robosuite lift step ms']:.2f} ms", flush=True)
-    datasets = {}
-    for task in tasks.split(","):
-        dataset = out / f"{task}.hdf5"
-        if not dataset.exists():
-            timings[f"record {task}"] = record(task, demos, out / "episodes" / task)
-            build = [*CLI, "dataset", "build", str(out / "episodes" / task), "--output"]
-            timings[f"build {task}"] = run(
-                [*build, str(dataset), "--obs", "low-dim", "--overwrite"], out / "logs" / "build"
-            )
-        datasets[task] = dataset
-        print(task, timings.get(f"record {task}"), flush=True)
+    datasets = build_datasets(out, tasks, demos, timings)
 
     # seed-major, so that every condition has a first seed early (and BC after it)
-    commands: list[tuple[str, list[list[str]]]] = []
+    rl_options = ["--budget", ppo_budget, "--vec", "dummy", "--n-envs", str(n_envs), "--resume"]
+    commands: list[Job] = []
     for seed in range(seeds):
-        for task, dataset in datasets.items():
-            for count in (int(c) for c in demo_counts.split(",")):
-                runs = out / "ppo" / task / f"demos_{count}"
-                rl = [*CLI, "learn", "rl", "--dataset", str(dataset), "--demos", str(count)]
-                rl += ["--output", str(runs), "--first-seed", str(seed), "--budget", ppo_budget]
-                rl += ["--vec", "dummy", "--n-envs", str(n_envs), "--resume"]
-                evaluate = [*CLI, "learn", "eval", str(runs / f"seed_{seed}"), "--sim", "ours"]
-                evaluate += ["--episodes", str(eval_episodes), "--video", "1"]
-                commands.append((f"ppo-{task}-{count}-{seed}", [rl, evaluate]))
-        if seed:
-            continue
-        for task, dataset in datasets.items():
-            for count in (int(c) for c in bc_counts.split(",")):
-                target = out / "bc" / task / f"demos_{count}" / "seed_0"
-                bc = [*CLI, "learn", "bc", str(dataset), "--output", str(target)]
-                bc += ["--demos", str(count), "--epochs", str(bc_epochs)]
-                evaluate = [*CLI, "learn", "eval", str(target / "model.pt"), "--sim", "ours"]
-                evaluate += ["--episodes", str(eval_episodes)]
-                commands.append((f"bc-{task}-{count}", [bc, evaluate]))
+        commands += ppo_jobs(out, datasets, seed, demo_counts, rl_options, eval_episodes)
+        if seed == 0:
+            commands += bc_jobs(out, datasets, bc_counts, bc_epochs, eval_episodes)
 
     def job(name: str, steps: list[list[str]]) -> tuple[str, float]:
         seconds = sum(run(step, out / "logs" / f"{name}.log") for step in steps)

@@ -13,7 +13,7 @@ import time
 import httpx
 import pytest
 
-from crowdteleop.client.connection import TeleopClient
+from crowdteleop.client.connection import IceOptions, TeleopClient
 from tests.fixtures.browser import browser_context, require_chromium, wait_js
 from tests.fixtures.coord import ADMIN, Worker, auth, coord_server
 from tests.fixtures.turn import turn_server
@@ -56,8 +56,7 @@ def test_the_python_client_connects_through_turn_only_with_the_sessions_credenti
                     access["token"],
                     role="admin",
                     admin_token=access["admin_token"],
-                    ice_servers=view["ice_servers"],
-                    relay_only=True,
+                    ice=IceOptions(view["ice_servers"], relay_only=True),
                 )
                 try:
                     await client.connect()

@@ -24,6 +24,7 @@ from aiortc import (
 )
 from aiortc.mediastreams import MediaStreamError
 from av import VideoFrame
+from pydantic import BaseModel
 
 from crowdteleop.client.latency import FrameMatcher, LatencyTracker
 from crowdteleop.client.receiver import complete_frames_on_marker
@@ -79,6 +80,35 @@ class ClientState:
         span = self.frame_times[-1] - self.frame_times[0]
         return (len(self.frame_times) - 1) / span if span > 0 else 0.0
 
+    def keep(self, message: BaseModel) -> None:
+        """Keep what a server message says: the latest hello, status, telemetry and privileged
+        state; every haptic, episode end, saved episode and error."""
+        if isinstance(message, Hello):
+            self.hello = message
+        elif isinstance(message, TaskStatus):
+            self.status = message
+        elif isinstance(message, Telemetry):
+            self.telemetry = message
+        elif isinstance(message, PrivilegedState):
+            self.privileged = message
+        elif isinstance(message, HapticEvent):
+            self.haptics.append(message)
+        elif isinstance(message, EpisodeEnded):
+            self.episodes.append(message)
+        elif isinstance(message, EpisodeSaved):
+            self.saved.append(message)
+        elif isinstance(message, ErrorEvent):
+            self.errors.append(message)
+
+
+@dataclass(frozen=True)
+class IceOptions:
+    """How a client reaches the server: its STUN/TURN servers, and whether to use only TURN's
+    relayed candidates (as a browser with iceTransportPolicy "relay")."""
+
+    servers: Sequence[IceServer | str] = ()
+    relay_only: bool = False
+
 
 class TeleopClient:
     """Connect with `await connect()`; send commands; read `state`; `await close()`."""
@@ -91,13 +121,12 @@ class TeleopClient:
         device: DeviceKind = "bot",
         admin_token: str | None = None,
         video: bool = True,
-        ice_servers: Sequence[IceServer | str] = (),
-        relay_only: bool = False,
-        on_privileged: Callable[[PrivilegedState], None] | None = None,
+        ice: IceOptions = IceOptions(),
         offer_via: Callable[[str], Awaitable[OfferAnswer]] | None = None,
     ) -> None:
         """`offer_via(sdp)` signals through someone else (the coordinator, as a worker's page
-        does) instead of posting to the teleop server's `/offer` with `token`."""
+        does) instead of posting to the teleop server's `/offer` with `token`. Set
+        `on_privileged` to hear each privileged state as it arrives."""
         self.offer_via = offer_via
         self.base_url = base_url.rstrip("/")
         self.token, self.role, self.device = token, role, device
@@ -106,12 +135,11 @@ class TeleopClient:
         self.state = ClientState()
         self.matcher = FrameMatcher()
         self.latency = LatencyTracker()
-        self.on_privileged = on_privileged
+        self.on_privileged: Callable[[PrivilegedState], None] | None = None
         complete_frames_on_marker()  # frames reach us when a browser would see them
-        ice = rtc_ice_servers([IceServer.model_validate(server) for server in ice_servers])
-        # relay_only: only TURN candidates, as a browser with iceTransportPolicy "relay".
-        policy = RTCIceTransportPolicy.RELAY if relay_only else RTCIceTransportPolicy.ALL
-        self.pc = RTCPeerConnection(RTCConfiguration(iceServers=ice, iceTransportPolicy=policy))
+        servers = rtc_ice_servers([IceServer.model_validate(server) for server in ice.servers])
+        policy = RTCIceTransportPolicy.RELAY if ice.relay_only else RTCIceTransportPolicy.ALL
+        self.pc = RTCPeerConnection(RTCConfiguration(iceServers=servers, iceTransportPolicy=policy))
         self._channels: dict[str, Any] = {}
         self._seq = 0
         self._reported = 0
@@ -207,30 +235,15 @@ class TeleopClient:
 
     def _on_message(self, raw: str | bytes) -> None:
         message = parse_server_message(raw)
-        state = self.state
         if isinstance(message, FrameTag):
             self.matcher.add_tag(message.pts, message.command_seq)
-        elif isinstance(message, TaskStatus):
-            state.status = message
-        elif isinstance(message, PrivilegedState):
-            state.privileged = message
-            if self.on_privileged is not None:
-                self.on_privileged(message)
-        elif isinstance(message, HapticEvent):
-            state.haptics.append(message)
-        elif isinstance(message, EpisodeEnded):
-            state.episodes.append(message)
-        elif isinstance(message, EpisodeSaved):
-            state.saved.append(message)
-        elif isinstance(message, ErrorEvent):
-            state.errors.append(message)
-        elif isinstance(message, Telemetry):
-            state.telemetry = message
-        elif isinstance(message, Hello):
-            state.hello = message
         elif isinstance(message, ServerPing):
             pong = {"type": "pong", "id": message.id, "server_time_s": message.server_time_s}
             self.send_raw("events", {**pong, "client_time_ms": self._now_ms()})
+        else:
+            self.state.keep(message)
+            if isinstance(message, PrivilegedState) and self.on_privileged is not None:
+                self.on_privileged(message)
         self._changed.set()
 
     # --- sending --------------------------------------------------------------------------

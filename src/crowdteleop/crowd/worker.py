@@ -168,28 +168,41 @@ async def _for_a_window(
     report.outcomes = [episode.outcome for episode in worker.state.episodes]
 
 
-async def _until_done(
-    api: WorkerApi, worker: TeleopClient, report: WorkerReport, timeout_s: float
-) -> None:
-    """Episodes as they end, until the coordinator hands over the completion code."""
-    started = last_end = time.monotonic()
-    code_at: float | None = None
-    heard = 0  # episodes this connection has reported
-    errors_heard = 0
-    robot_since = api.view.ready_at if api.view is not None else None
-    while True:
+@dataclass
+class _Heard:
+    """How much of what the server told this connection the report already holds."""
+
+    last_end: float  # when the last episode ended (or the robot was first driven)
+    episodes: int = 0
+    errors: int = 0
+
+    def take(self, worker: TeleopClient, report: WorkerReport) -> None:
+        """Episodes ended and errors told since the last look go into the report; a recording
+        failure stops the worker, as the page does."""
         episodes = worker.state.episodes
-        while heard < len(episodes):
+        while self.episodes < len(episodes):
             now = time.monotonic()
-            report.outcomes.append(episodes[heard].outcome)
-            report.episode_s.append(now - last_end)
-            last_end, heard = now, heard + 1
-        for event in worker.state.errors[errors_heard:]:
-            errors_heard += 1
+            report.outcomes.append(episodes[self.episodes].outcome)
+            report.episode_s.append(now - self.last_end)
+            self.last_end, self.episodes = now, self.episodes + 1
+        for event in worker.state.errors[self.errors :]:
+            self.errors += 1
             if event.code in TOLD_CODES:
                 report.notices.append(event.message)
             if event.code == "recording_failed":  # the page shows it; the worker stops
                 raise ConnectionError(f"the server said: {event.message}")
+
+
+async def _until_done(
+    api: WorkerApi, worker: TeleopClient, report: WorkerReport, timeout_s: float
+) -> None:
+    """Episodes as they end, until the coordinator hands over the completion code."""
+    started = time.monotonic()
+    heard = _Heard(last_end=started)
+    code_at: float | None = None
+    robot_since = api.view.ready_at if api.view is not None else None
+    while True:
+        heard.take(worker, report)
         view = await api.refresh()
         if view.state in ("queued", "starting") or view.ready_at != robot_since:
             report.notices.append(view.notice or "")

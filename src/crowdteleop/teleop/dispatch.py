@@ -68,47 +68,57 @@ class Dispatcher:
             return False
 
     def _apply(self, peer: Peer, message: BaseModel) -> bool:
-        board = self.session.board
-        if isinstance(message, PoseCommand | ClutchEvent | GripperEvent) and self._too_old(
-            peer, message
-        ):
-            return False
-        if isinstance(message, PoseCommand):
-            if not board.apply_pose(peer.peer_id, message):
-                peer.guard.refuse("stale")
-            return False
-        if isinstance(message, ClutchEvent | GripperEvent):
-            if not board.apply_event(peer.peer_id, message):
-                peer.guard.refuse("stale")
+        if isinstance(message, PoseCommand | ClutchEvent | GripperEvent):
+            self._apply_input(peer, message)
             return False
         if isinstance(message, TakeControl):
-            return board.take_control(peer.peer_id, message.device)
+            return self.session.board.take_control(peer.peer_id, message.device)
+        if isinstance(message, VideoStatus):
+            return self._on_video_status(peer, message)
+        if isinstance(message, ResetRequest | StartRequest | StopRequest | SkipPractice):
+            self._request(message)
+        elif isinstance(message, Ping):
+            peer.send(PingReply(id=message.id, client_time_ms=message.client_time_ms))
+        elif isinstance(message, Pong):
+            self._on_pong(peer, message)
+        elif isinstance(message, LatencyReport):
+            self.telemetry.latency_ms.extend(message.samples_ms)
+            if message.fps > 0:
+                self.telemetry.client_fps.append(message.fps)
+        return True
+
+    def _apply_input(self, peer: Peer, message: PoseCommand | ClutchEvent | GripperEvent) -> None:
+        """A device's pose, clutch or gripper command goes to the board unless it is too old;
+        one the board finds stale (not newer than the last applied seq) is counted."""
+        if self._too_old(peer, message):
+            return
+        board = self.session.board
+        if isinstance(message, PoseCommand):
+            applied = board.apply_pose(peer.peer_id, message)
+        else:
+            applied = board.apply_event(peer.peer_id, message)
+        if not applied:
+            peer.guard.refuse("stale")
+
+    def _request(self, message: ResetRequest | StartRequest | StopRequest | SkipPractice) -> None:
         if isinstance(message, ResetRequest):
             self.session.request_reset()
         elif isinstance(message, StartRequest):
             self.session.request_start()
         elif isinstance(message, StopRequest):
             self.session.request_stop()
-        elif isinstance(message, SkipPractice):
+        else:
             self.session.request_skip_practice()
-        elif isinstance(message, Ping):
-            peer.send(PingReply(id=message.id, client_time_ms=message.client_time_ms))
-        elif isinstance(message, Pong):
-            self._on_pong(peer, message)
-        elif isinstance(message, VideoStatus):
-            if peer.role != "worker":
-                peer.guard.refuse("not_worker")
-                peer.send_error("not_worker", "only the worker's page reports its video")
-                return False
-            if message.stalled and not peer.video_stalled:
-                self.telemetry.video_stalls += 1
-            peer.video_stalled = message.stalled
-            return board.set_video_stalled(worker_video_stalled(self.peers))
-        elif isinstance(message, LatencyReport):
-            self.telemetry.latency_ms.extend(message.samples_ms)
-            if message.fps > 0:
-                self.telemetry.client_fps.append(message.fps)
-        return True
+
+    def _on_video_status(self, peer: Peer, message: VideoStatus) -> bool:
+        if peer.role != "worker":
+            peer.guard.refuse("not_worker")
+            peer.send_error("not_worker", "only the worker's page reports its video")
+            return False
+        if message.stalled and not peer.video_stalled:
+            self.telemetry.video_stalls += 1
+        peer.video_stalled = message.stalled
+        return self.session.board.set_video_stalled(worker_video_stalled(self.peers))
 
     def _on_pong(self, peer: Peer, message: Pong) -> None:
         now = time.monotonic()

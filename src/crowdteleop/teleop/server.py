@@ -145,23 +145,9 @@ class TeleopServer:
             offer = OfferRequest.model_validate_json(await request.read())
         except ValidationError as exc:
             return self._http_error(400, "invalid_offer", str(exc.errors()[0]["msg"]))
-        if self.config.standby:
-            return self._http_error(409, "standby", "this server has no session yet")
-        if not token_matches(offer.token, self.config.token):
-            return self._http_error(401, "bad_token", "the session token is wrong")
-        if offer.role == "admin" and not token_matches(offer.admin_token, self.config.admin_token):
-            return self._http_error(403, "bad_admin_token", "admin role needs the admin token")
-        missing = missing_offer_sections(offer.sdp, offer.role)
-        if missing:
-            sections = " and ".join(f"an m={kind} section" for kind in missing)
-            return self._http_error(
-                400,
-                "incomplete_offer",
-                f"a {offer.role} offer needs {sections} (data channels; video for the "
-                "worker): create them before createOffer",
-            )
-        if self.peers.full:
-            return self._http_error(503, "full", "this session has all the peers it allows")
+        refusal = self._refusal(offer)
+        if refusal is not None:
+            return self._http_error(*refusal)
         try:
             answer, peer_id = await self.peers.connect(offer)
         except Exception as exc:  # a malformed SDP must not take the session down
@@ -169,6 +155,27 @@ class TeleopServer:
             return self._http_error(400, "invalid_sdp", f"could not use the offer: {exc}")
         body = OfferAnswer(sdp=answer.sdp, type=answer.type, peer_id=peer_id)
         return web.json_response(body.model_dump())
+
+    def _refusal(self, offer: OfferRequest) -> tuple[int, str, str] | None:
+        """Why an offer is refused before its SDP is used (status, code, message), or None."""
+        if self.config.standby:
+            return 409, "standby", "this server has no session yet"
+        if not token_matches(offer.token, self.config.token):
+            return 401, "bad_token", "the session token is wrong"
+        if offer.role == "admin" and not token_matches(offer.admin_token, self.config.admin_token):
+            return 403, "bad_admin_token", "admin role needs the admin token"
+        missing = missing_offer_sections(offer.sdp, offer.role)
+        if missing:
+            sections = " and ".join(f"an m={kind} section" for kind in missing)
+            return (
+                400,
+                "incomplete_offer",
+                f"a {offer.role} offer needs {sections} (data channels; video for the "
+                "worker): create them before createOffer",
+            )
+        if self.peers.full:
+            return 503, "full", "this session has all the peers it allows"
+        return None
 
     async def handle_health(self, _request: web.Request) -> web.Response:
         health = TeleopHealth(

@@ -223,28 +223,33 @@ class TeleopSession:
     async def _apply_requests(self) -> None:
         needs_reset = False
         for request in self._pending:
-            match request:
-                case StopSession():
-                    self._end("reset", stop=True)
-                case StartSession():
-                    if self.tracker.state == "stopped":
-                        self.tracker.state = "ready"
-                        needs_reset = True
-                case ResetScene():
-                    if self.tracker.state != "stopped":
-                        self._end("reset")
-                        needs_reset = True
-                case SkipPractice():
-                    needs_reset = self.practice.skip() or needs_reset
-                case EndEpisode(outcome):
-                    if self.tracker.state == "running":
-                        self._end(outcome)
-                        needs_reset = True
-                case _:
-                    assert_never(request)
+            needs_reset = self._apply_request(request) or needs_reset
         self._pending.clear()
         if needs_reset:
             await self._in_sim_thread(self._reset_scene)
+
+    def _apply_request(self, request: SessionRequest) -> bool:
+        """Apply one request between steps; returns whether the scene must reset."""
+        state = self.tracker.state
+        match request:
+            case StopSession():
+                self._end("reset", stop=True)
+                return False
+            case StartSession() if state == "stopped":
+                self.tracker.state = "ready"
+                return True
+            case ResetScene() if state != "stopped":
+                self._end("reset")
+                return True
+            case EndEpisode(outcome) if state == "running":
+                self._end(outcome)
+                return True
+            case SkipPractice():
+                return self.practice.skip()
+            case StartSession() | ResetScene() | EndEpisode():
+                return False  # nothing to do in this state
+            case _:
+                assert_never(request)
 
     # --- the control step ------------------------------------------------------------------
 
