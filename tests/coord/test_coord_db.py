@@ -113,15 +113,16 @@ def test_rejoining_with_the_same_external_id_is_the_same_worker(database_url):
     async def scenario():
         store = await _store(database_url)
         try:
-            await store.save_campaigns([CampaignConfig()])
-            first, token1, created1 = await store.join("default", "prolific", "PID1", "S", "X")
-            again, token2, created2 = await store.join("default", "prolific", "PID1", "S", "Y")
-            other, _, _ = await store.join("default", "mturk", "PID1")  # another platform
-            anon1, _, _ = await store.join("default", "anonymous", None)
-            anon2, _, _ = await store.join("default", "anonymous", None)
-            by_old, _ = await store.token_holder(token1)
-            by_new, _ = await store.token_holder(token2)
-            nobody, _ = await store.token_holder("not-a-token")
+            await store.save_campaigns({"default": CampaignConfig().model_dump(mode="json")})
+            workers = store.workers
+            first, token1, created1 = await workers.join("default", "prolific", "PID1", "S", "X")
+            again, token2, created2 = await workers.join("default", "prolific", "PID1", "S", "Y")
+            other, _, _ = await workers.join("default", "mturk", "PID1")  # another platform
+            anon1, _, _ = await workers.join("default", "anonymous", None)
+            anon2, _, _ = await workers.join("default", "anonymous", None)
+            by_old, _ = await workers.token_holder(token1)
+            by_new, _ = await workers.token_holder(token2)
+            nobody, _ = await workers.token_holder("not-a-token")
             return first, again, other, anon1, anon2, by_old, by_new, nobody, created1, created2
         finally:
             await store.close()
@@ -139,17 +140,17 @@ def test_episode_reports_count_once(database_url):
     async def scenario():
         store = await _store(database_url)
         try:
-            worker, _, _ = await store.join("default", "anonymous", None)
-            await store.add_session(_session(worker.id, "s_0000000000000001", time.time()))
+            worker, _, _ = await store.workers.join("default", "anonymous", None)
+            await store.sessions.add_session(_session(worker.id, "s_0000000000000001", time.time()))
             sid = "s_0000000000000001"
             results = [
-                await store.add_episode(_episode("e1", sid)),
-                await store.add_episode(_episode("e1", sid)),  # a retried report
-                await store.add_episode(_episode("e2", sid, outcome="reset")),
-                await store.add_episode(_episode("e3", sid)),
+                await store.episodes.add_episode(_episode("e1", sid)),
+                await store.episodes.add_episode(_episode("e1", sid)),  # a retried report
+                await store.episodes.add_episode(_episode("e2", sid, outcome="reset")),
+                await store.episodes.add_episode(_episode("e3", sid)),
             ]
-            episodes = await store.episodes(sid)
-            kinds = [e.kind for e in await store.events(sid)]
+            episodes = await store.episodes.episodes(sid)
+            kinds = [e.kind for e in await store.sessions.events(sid)]
             return results, episodes, kinds
         finally:
             await store.close()
@@ -164,9 +165,9 @@ def test_pairing_codes_are_single_use_and_expire(database_url):
     async def scenario():
         store = await _store(database_url)
         try:
-            worker, _, _ = await store.join("default", "anonymous", None)
+            worker, _, _ = await store.workers.join("default", "anonymous", None)
             sid = "s_0000000000000002"
-            await store.add_session(_session(worker.id, sid, time.time()))
+            await store.sessions.add_session(_session(worker.id, sid, time.time()))
             now = time.time()
             assert await store.pairing.add_code(sid, "ABC234", now + 60)
             clash = await store.pairing.add_code(sid, "ABC234", now + 60)
@@ -190,19 +191,19 @@ def test_live_sessions_keep_queue_order_and_updates_respect_state(database_url):
     async def scenario():
         store = await _store(database_url)
         try:
-            worker, _, _ = await store.join("default", "anonymous", None)
+            worker, _, _ = await store.workers.join("default", "anonymous", None)
             base = time.time()
             for i, sid in enumerate(["s_000000000000000c", "s_000000000000000a"]):
-                await store.add_session(_session(worker.id, sid, base + i))
-            order = [s.id for s in await store.live_sessions()]
-            ended = await store.update_session(
+                await store.sessions.add_session(_session(worker.id, sid, base + i))
+            order = [s.id for s in await store.sessions.live_sessions()]
+            ended = await store.sessions.update_session(
                 "s_000000000000000c", only_if_state=("queued",), state="ended"
             )
-            again = await store.update_session(
+            again = await store.sessions.update_session(
                 "s_000000000000000c", only_if_state=("queued",), state="ready"
             )
-            live = [s.id for s in await store.live_sessions()]
-            totals = await store.totals()
+            live = [s.id for s in await store.sessions.live_sessions()]
+            totals = await store.episodes.totals()
             return order, ended, again, live, totals
         finally:
             await store.close()

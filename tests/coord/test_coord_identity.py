@@ -4,6 +4,8 @@ refused, or takes the session over explicitly, and the first browser is told."""
 
 from __future__ import annotations
 
+import sqlite3
+
 from tests.fixtures.coord import ADMIN, Api, FakeLauncher, coord_config, in_process_app
 
 STUDY = {"PROLIFIC_PID": "alice", "STUDY_ID": "st", "SESSION_ID": "se"}
@@ -60,8 +62,8 @@ def test_without_a_live_session_the_same_study_id_joins_from_anywhere(tmp_path):
 
 
 def _events(client, sid: str) -> list[dict]:
-    from crowdteleop.coord.service.coordinator import Coordinator
-
-    coordinator: Coordinator = client.app_state.coordinator
-    portal = client.portal  # the TestClient's event loop thread
-    return [{"kind": e.kind} for e in portal.call(coordinator.store.events, sid)]
+    """The session's event log, read from the app's database as the coordinator wrote it."""
+    database = client.app_state.config.database_url.removeprefix("sqlite:///")
+    with sqlite3.connect(database) as db:
+        rows = db.execute("SELECT kind FROM events WHERE session_id = ? ORDER BY id", (sid,))
+        return [{"kind": kind} for (kind,) in rows]

@@ -7,8 +7,9 @@ from __future__ import annotations
 import pytest
 from pydantic import ValidationError
 
+from crowdteleop.coord.guard.session_keys import SESSION_SECRET_FILE, SessionKeys
 from crowdteleop.coord.service.config import CoordConfig
-from crowdteleop.coord.service.teleop_configs import assignment_of
+from crowdteleop.coord.service.teleop_configs import TeleopConfigs, assignment_of
 from crowdteleop.recording.metadata import RegionChoice
 from crowdteleop.teleop.assign import assigned_config
 from tests.fixtures.coord import ADMIN, Api, FakeLauncher, coord_config, in_process_app
@@ -80,9 +81,8 @@ def test_a_workers_region_and_round_trips_reach_their_teleop_server(tmp_path):
         assert shown["rtt_ms"] == 21.0, "the admin page shows how far each worker is"
     assert sent.region == RegionChoice(region="china", rtts_ms=rtts)
     # A warm spare (built before anyone's region) takes it on with its session.
-    spare = client.app_state.coordinator.configs.for_spare(
-        ("lift", "Sawyer", "ik-velocity"), "spare-1"
-    )
+    keys = SessionKeys.load_or_create(config.data_dir / "state" / SESSION_SECRET_FILE)
+    spare = TeleopConfigs(config, keys).for_spare(("lift", "Sawyer", "ik-velocity"), "spare-1")
     assert spare.region is None
     assert assigned_config(spare, assignment_of(sent)).region == sent.region
 

@@ -168,9 +168,7 @@ def test_a_silent_replicas_sessions_are_taken_over(tmp_path, shared_database):
                 assert view["state"] == "ready", view
 
 
-async def racing_replicas(
-    tmp_path: Path, database: str, shared_lock: bool
-) -> tuple[int, list[str], list[str]]:
+async def racing_replicas(tmp_path: Path, database: str) -> tuple[int, list[str], list[str]]:
     """Two replicas' coordinators in one event loop, 40 workers asking for a session through
     both at once (every database round trip lets the other replica in): the most sessions
     ever holding a slot, the sessions launched (once per launch), the first three asking."""
@@ -183,7 +181,7 @@ async def racing_replicas(
 
     await migrate(database)
     tmp_path.mkdir(parents=True, exist_ok=True)
-    replicas = []
+    replicas, stores, launchers = [], [], []
     for name in ("a", "b"):
         config = coord_config(
             tmp_path / name,
@@ -192,37 +190,39 @@ async def racing_replicas(
             replica_name=name,
             admission=OPEN_ADMISSION,
         )
-        store = Store(make_engine(database))
+        store, launcher = Store(make_engine(database)), FakeLauncher()
         coordinator = Coordinator(
-            config, store, FakeLauncher(), SessionKeys.load_or_create(tmp_path / f"{name}.key")
+            config, store, launcher, SessionKeys.load_or_create(tmp_path / f"{name}.key")
         )
-        coordinator.lock.shared = shared_lock
         await coordinator.start()
         replicas.append(coordinator)
+        stores.append(store)
+        launchers.append(launcher)
     campaign = replicas[0].config.default_campaign
     workers = [
-        (await replicas[0].store.join(campaign.name, "prolific", f"racer{n}"))[0] for n in range(40)
+        (await stores[0].workers.join(campaign.name, "prolific", f"racer{n}"))[0]
+        for n in range(40)
     ]
     most = 0
 
     async def watch() -> None:
         nonlocal most
         while True:
-            most = max(most, await replicas[0].store.held_slots())
+            most = max(most, await stores[0].sessions.held_slots())
             await asyncio.sleep(0)
 
     watcher = asyncio.create_task(watch())
     await asyncio.gather(
         *(replicas[n % 2].create_session(worker, campaign) for n, worker in enumerate(workers))
     )
-    most = max(most, await replicas[0].store.held_slots())
+    most = max(most, await stores[0].sessions.held_slots())
     watcher.cancel()
     await asyncio.sleep(0.5)  # the launches finish
-    launched = [sid for c in replicas for sid in c.pool.launcher.handles]  # type: ignore[attr-defined]
+    launched = [sid for launcher in launchers for sid in launcher.handles]
     first = [r["id"] for r in rows(database)][:CAPACITY]
-    for coordinator in replicas:
+    for coordinator, store in zip(replicas, stores, strict=True):
         await coordinator.close()
-        await coordinator.store.close()
+        await store.close()
     return most, launched, first
 
 
@@ -231,7 +231,7 @@ def test_replicas_racing_for_slots_admit_each_session_once_in_order(tmp_path, sh
 
     for attempt in range(3):
         most, launched, first = asyncio.run(
-            racing_replicas(tmp_path / str(attempt), shared_database, shared_lock=True)
+            racing_replicas(tmp_path / str(attempt), shared_database)
         )
         assert most == CAPACITY, "never past the capacity"
         assert sorted(launched) == sorted(first), "the first three, each launched once"

@@ -22,14 +22,14 @@ pytestmark = pytest.mark.slow
 def live_app(tmp_path):
     """The app served by uvicorn in a thread, with a worker whose session is ready (and its
     schema served: `api_docs` is off by default)."""
-    app = create_app(coord_config(tmp_path, capacity=2, api_docs=True), FakeLauncher())
+    launcher = FakeLauncher()
+    app = create_app(coord_config(tmp_path, capacity=2, api_docs=True), launcher)
     with served_app(app) as url, httpx.Client(base_url=url, timeout=30) as http:
         token = http.post("/api/join", json={"params": {}}).json()["worker_token"]
         headers = {"Authorization": f"Bearer {token}"}
         sid = http.post("/api/sessions", headers=headers).json()["session_id"]
         code = http.post(f"/api/sessions/{sid}/pairing", headers=headers).json()["code"]
         phone = http.post("/api/pair", json={"code": code}).json()["phone_token"]
-        launcher = app.state.coordinator.pool.launcher
         while sid not in launcher.handles:
             time.sleep(0.05)
         report = launcher.handles[sid].config.report_token

@@ -13,40 +13,42 @@ from pathlib import Path
 
 from crowdteleop.coord.db.engine import make_engine, migrate
 from crowdteleop.coord.db.store import Store
-from crowdteleop.coord.fleet.cluster import follow_cluster
 from crowdteleop.coord.guard.session_keys import SessionKeys
 from crowdteleop.coord.service.coordinator import Coordinator
-from crowdteleop.coord.service.replication import sweep_shared_state
 from tests.fixtures.coord import FakeCluster, coord_config
 
 SLOTS = 4
 
 
-async def replica(tmp_path: Path, database: str, name: str, cluster: FakeCluster) -> Coordinator:
+async def replica(
+    tmp_path: Path, database: str, name: str, cluster: FakeCluster
+) -> tuple[Coordinator, Store]:
     config = coord_config(
         tmp_path / name, database, spare_servers=1, replica_name=name, replica_stale_after_s=2.0
     )
     keys = SessionKeys.load_or_create(tmp_path / "session.key")  # one secret, as replicas share
-    coordinator = Coordinator(config, Store(make_engine(database)), cluster, keys)
+    store = Store(make_engine(database))
+    coordinator = Coordinator(config, store, cluster, keys)
     await coordinator.start()
-    return coordinator
+    return coordinator, store
 
 
 async def sweep(*replicas: Coordinator) -> None:
     for coordinator in replicas:
-        await sweep_shared_state(coordinator)
-        await follow_cluster(coordinator)
+        await coordinator.sweep()
 
 
-async def spares(coordinator: Coordinator) -> list[tuple[str, str, bool]]:
-    rows = await coordinator.spares.registry.rows()
+async def spares(store: Store) -> list[tuple[str, str, bool]]:
+    rows = await store.spare_registry("test").rows()
     return sorted((row.id, row.replica, row.url is not None) for row in rows)
 
 
-async def settle(*replicas: Coordinator, ready_spares: int = 1, timeout_s: float = 10) -> None:
+async def settle(
+    store: Store, *replicas: Coordinator, ready_spares: int = 1, timeout_s: float = 10
+) -> None:
     deadline = time.monotonic() + timeout_s
-    while sum(ready for *_, ready in await spares(replicas[0])) < ready_spares:
-        assert time.monotonic() < deadline, await spares(replicas[0])
+    while sum(ready for *_, ready in await spares(store)) < ready_spares:
+        assert time.monotonic() < deadline, await spares(store)
         await sweep(*replicas)
         await asyncio.sleep(0.05)
 
@@ -54,57 +56,58 @@ async def settle(*replicas: Coordinator, ready_spares: int = 1, timeout_s: float
 async def scenario(tmp_path: Path, database: str) -> None:
     await migrate(database)
     cluster = FakeCluster(SLOTS, start_delay_s=0.1)
-    a = await replica(tmp_path, database, "a", cluster)
-    b = await replica(tmp_path, database, "b", cluster)
-    running = [a, b]
+    a, store_a = await replica(tmp_path, database, "a", cluster)
+    b, store_b = await replica(tmp_path, database, "b", cluster)
+    running = [(a, store_a), (b, store_b)]
     try:
-        await settle(a, b)
+        await settle(store_a, a, b)
         for _ in range(5):  # more sweeps start no second one
             await sweep(a, b)
             await asyncio.sleep(0.05)
-        [(spare_id, owner, _)] = await spares(a)
+        [(spare_id, owner, _)] = await spares(store_a)
         assert len(cluster.handles) == 1, "one spare for both replicas, not one each"
-        assert (a.pool.capacity, b.pool.capacity) == (SLOTS - 1, SLOTS - 1), "it holds a slot"
+        assert (a.capacity, b.capacity) == (SLOTS - 1, SLOTS - 1), "it holds a slot"
 
         # A worker admitted by the replica that did not start the spare gets it.
         other = b if owner == "a" else a
         campaign = other.config.default_campaign
-        worker, _token, _ = await other.store.join(campaign.name, "prolific", "w1")
+        worker, _token, _ = await store_a.workers.join(campaign.name, "prolific", "w1")
         session = await other.create_session(worker, campaign)
         deadline = time.monotonic() + 10
-        while (current := await other.store.session(session.id)).state != "ready":
+        while (current := await other.session(session.id)).state != "ready":
             assert time.monotonic() < deadline, current.state
             await asyncio.sleep(0.05)
         assert session.id not in cluster.handles, "no server was built for it"
         assert cluster.handles[spare_id].config.session_id == session.id, "the spare took it"
         assert current.server == cluster.name_of(cluster.handles[spare_id])
-        assert current.replica == other.replicas.name
+        assert current.replica == other.config.replica_name
 
         # A new spare replaces it; the first replica lets go of the one it gave away.
-        await settle(a, b)
-        assert len(await spares(a)) == 1
+        await settle(store_a, a, b)
+        assert len(await spares(store_a)) == 1
         assert spare_id not in cluster.stopped, "a spare serving a worker is never stopped"
         starter = a if owner == "a" else b
-        assert spare_id not in starter.spares.handles
+        assert spare_id not in starter.spares()
 
         # The replica watching the new spare stops: the other takes it over, running.
-        [(new_spare, new_owner, _)] = await spares(a)
-        leaving, staying = (a, b) if new_owner == "a" else (b, a)
-        await leaving.close()
-        await leaving.store.close()
+        [(new_spare, new_owner, _)] = await spares(store_a)
+        leaving, staying = running if new_owner == "a" else running[::-1]
+        await leaving[0].close()
+        await leaving[1].close()
         running.remove(leaving)
+        staying_store, staying = staying[1], staying[0]
         deadline = time.monotonic() + 10
-        while (await spares(staying))[0][1] != staying.replicas.name:
-            assert time.monotonic() < deadline, await spares(staying)
+        while (await spares(staying_store))[0][1] != staying.config.replica_name:
+            assert time.monotonic() < deadline, await spares(staying_store)
             await sweep(staying)
             await asyncio.sleep(0.1)
         assert new_spare not in cluster.stopped, "handed over, not stopped"
-        assert new_spare in staying.spares.handles
+        assert new_spare in staying.spares()
         assert cluster.handles[spare_id].alive, "the worker's server ran on throughout"
     finally:
-        for coordinator in running:
+        for coordinator, store in running:
             await coordinator.close()
-            await coordinator.store.close()
+            await store.close()
     assert not any(h.alive for h in cluster.handles.values()), "the last replica stops them"
 
 

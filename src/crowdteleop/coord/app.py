@@ -2,38 +2,29 @@
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
-import logging
-import time
 from collections.abc import AsyncIterator
-from typing import Any
 
-import aiohttp
-from fastapi import Depends, FastAPI, Request
-from fastapi.responses import Response
+from fastapi import FastAPI
 
-from crowdteleop.coord.api import admin, internal, pages, pairing, regions, sessions
-from crowdteleop.coord.api.deps import require_admin
+from crowdteleop.coord.api import admin, internal, pages, pairing, regions, server, sessions
 from crowdteleop.coord.db.engine import make_engine, migrate
 from crowdteleop.coord.db.store import Store
-from crowdteleop.coord.fleet.cluster import follow_cluster
 from crowdteleop.coord.fleet.launcher import Launcher, LocalProcessLauncher
-from crowdteleop.coord.guard.errors import BodyLimitMiddleware, install_error_handlers
+from crowdteleop.coord.guard.errors import install_error_handlers
 from crowdteleop.coord.guard.headers import SecurityHeadersMiddleware
-from crowdteleop.coord.guard.http_limits import BodyTimeoutMiddleware
+from crowdteleop.coord.guard.http_limits import BodyLimitMiddleware, BodyTimeoutMiddleware
 from crowdteleop.coord.guard.private import prepare_data_dir
 from crowdteleop.coord.guard.session_keys import SESSION_SECRET_FILE, SessionKeys
 from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.coordinator import Coordinator
+from crowdteleop.coord.service.episodes import Episodes
 from crowdteleop.coord.service.guards import Guards
-from crowdteleop.coord.service.liveness import run_liveness
 from crowdteleop.coord.service.metrics import CoordMetrics
-from crowdteleop.coord.service.reaper import run_reaper
-from crowdteleop.coord.service.spools import run_spool_sweeper
+from crowdteleop.coord.service.pairing import Pairing
+from crowdteleop.coord.service.signaling import Signaling
+from crowdteleop.coord.service.workers import Workers
 from crowdteleop.web import qr
-
-log = logging.getLogger(__name__)
 
 
 def _launcher(config: CoordConfig) -> Launcher:
@@ -49,7 +40,9 @@ def _launcher(config: CoordConfig) -> Launcher:
 
 
 def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI:
-    """Everything server-wide lives on `app.state`, built and torn down by the lifespan."""
+    """Everything server-wide lives on `app.state`, built and torn down by the lifespan: the
+    config, the `Coordinator` (which owns the background sweeps), and the services the
+    routers call."""
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -57,28 +50,23 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         keys = SessionKeys.load_or_create(config.data_dir / "state" / SESSION_SECRET_FILE)
         await migrate(config.database_url)
         store = Store(make_engine(config.database_url))
-        chosen = launcher or _launcher(config)
         metrics = CoordMetrics()
-        coordinator = Coordinator(config, store, chosen, keys, metrics)
-        await follow_cluster(coordinator, admit=False)  # a cluster's room, before admitting
+        coordinator = Coordinator(config, store, launcher or _launcher(config), keys, metrics)
         await coordinator.start()
-        app.state.coordinator = coordinator
-        app.state.guards = Guards.of(config, metrics, store.transactions)
-        app.state.http = aiohttp.ClientSession()
-        watchers = [
-            asyncio.create_task(run_reaper(coordinator), name="reaper"),
-            asyncio.create_task(run_liveness(coordinator), name="liveness"),
-            asyncio.create_task(run_spool_sweeper(coordinator), name="spools"),
-        ]
+        coordinator.start_sweeps()
+        signaling = Signaling(keys)
+        state = app.state
+        state.config, state.metrics, state.coordinator = config, metrics, coordinator
+        state.workers = Workers(store, config, metrics)
+        state.pairing = Pairing(store, config)
+        state.episodes = Episodes(store, config, metrics, coordinator)
+        state.signaling = signaling
+        state.guards = Guards.of(config, metrics, store)
         try:
             yield
         finally:
-            for watcher in watchers:
-                watcher.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await watcher
             await coordinator.close()
-            await app.state.http.close()
+            await signaling.close()
             await store.close()
 
     app = FastAPI(
@@ -99,50 +87,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         SecurityHeadersMiddleware, docs_paths=docs_pages, connect_origins=config.region_origins()
     )
     install_error_handlers(app)
-    app.include_router(sessions.router)
-    app.include_router(regions.router)
-    app.include_router(pairing.router)
-    app.include_router(admin.router)
-    app.include_router(internal.router)
-    app.include_router(pages.router)
-    _include_web_routers(app)
-    app.include_router(qr.router)
+    for router in (sessions, regions, pairing, admin, internal, pages, qr, server):
+        app.include_router(router.router)
     app.mount("/static", pages.StaticDirectory(pages.STATIC), name="static")
-
-    @app.get("/health", tags=["server"])
-    async def health(request: Request) -> dict[str, Any]:
-        coordinator: Coordinator = request.app.state.coordinator
-        spares = len(coordinator.spares.handles)
-        return {
-            "status": "ok",
-            "capacity": coordinator.pool.capacity,
-            "busy": len(coordinator.pool.slots),
-            "spares": spares,
-        }
-
-    @app.get("/metrics", tags=["server"], dependencies=[Depends(require_admin)])
-    async def metrics(request: Request) -> Response:
-        """Prometheus's text format (admin token: `bearer_token` in the scrape config)."""
-        coordinator: Coordinator = request.app.state.coordinator
-        metrics = coordinator.metrics
-        live = await coordinator.store.live_sessions()
-        for state in ("queued", "starting", "ready"):
-            metrics.sessions.labels(state=state).set(sum(s.state == state for s in live))
-        metrics.capacity.set(coordinator.pool.capacity)
-        metrics.spares.set(len(coordinator.spares.handles))
-        recent = await coordinator.store.episodes_since(time.time() - 3600)
-        metrics.demos_last_hour.set(sum(e.outcome == "success" for e in recent))
-        metrics.spool_pending.set(sum(s.spool_pending for s in coordinator.pool.slots.values()))
-        return Response(metrics.exposition(), media_type="text/plain; version=0.0.4")
-
     return app
-
-
-def _include_web_routers(app: FastAPI) -> None:
-    """Routes the web front end adds (crowdteleop/web, e.g. /qr.svg), when it is installed."""
-    try:
-        from crowdteleop.web.qr import router as qr_router
-    except ImportError as exc:
-        log.info("no QR code route: %s", exc)
-        return
-    app.include_router(qr_router)

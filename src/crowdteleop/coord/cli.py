@@ -115,8 +115,7 @@ def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFil
     """The config, the bound listening sockets (public, then internal if any), TLS files."""
     from crowdteleop.coord.db.replicas import default_replica_name
     from crowdteleop.coord.guard.http_limits import listening_socket
-    from crowdteleop.coord.guard.private import private_dir
-    from crowdteleop.coord.guard.tls import local_names, self_signed
+    from crowdteleop.coord.guard.tls import local_names
     from crowdteleop.coord.service.campaign import load_campaigns
     from crowdteleop.coord.service.config import CoordConfig
 
@@ -133,14 +132,7 @@ def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFil
     internal_host = "127.0.0.1" if o.host in WILDCARD + LOOPBACK else shown
     internal = f"http://{internal_host}:{bound}"
     if o.https:
-        if o.cert is not None and o.key is not None:
-            tls = (o.cert, o.key)
-        elif o.cert is None and o.key is None:
-            names = set(local_names()) | ({o.host} if o.host not in WILDCARD else set())
-            private_dir(o.data_dir)  # before its tls/ folder, which would give it usual modes
-            tls = self_signed(o.data_dir / "tls", sorted(names))
-        else:
-            raise ValueError("--cert and --key go together")
+        tls = _tls_files(o)
         # Teleop servers report over plain HTTP on loopback (no certificate to trust).
         side = listening_socket("127.0.0.1", 0)
         internal = f"http://127.0.0.1:{side.getsockname()[1]}"
@@ -169,6 +161,20 @@ def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFil
     if o.config is not None:
         return CoordConfig.from_file(o.config, defaults, **fields), sockets, tls
     return CoordConfig.model_validate({**defaults, **fields}), sockets, tls
+
+
+def _tls_files(o: ServeOptions) -> TlsFiles:
+    """--cert and --key, or a self-signed certificate for every name this machine answers to."""
+    from crowdteleop.coord.guard.private import private_dir
+    from crowdteleop.coord.guard.tls import local_names, self_signed
+
+    if o.cert is not None and o.key is not None:
+        return o.cert, o.key
+    if o.cert is not None or o.key is not None:
+        raise ValueError("--cert and --key go together")
+    names = set(local_names()) | ({o.host} if o.host not in WILDCARD else set())
+    private_dir(o.data_dir)  # before its tls/ folder, which would give it usual modes
+    return self_signed(o.data_dir / "tls", sorted(names))
 
 
 async def _run(

@@ -1,26 +1,41 @@
-"""Admin endpoints (admin bearer token): the overview, and a privileged door into a session."""
+"""Admin endpoints (admin bearer token): the overview with its figures (demonstrations per
+hour, completion times per worker and interface), and a privileged door into a session."""
 
 from __future__ import annotations
 
+import statistics
 import time
+from collections import defaultdict
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from fastapi import APIRouter, Depends
 
 from crowdteleop.coord.api import views
-from crowdteleop.coord.api.deps import CoordinatorDep, SessionId, require_admin
+from crowdteleop.coord.api.deps import (
+    CoordinatorDep,
+    EpisodesDep,
+    MetricsDep,
+    SessionId,
+    SignalingDep,
+    WorkersDep,
+    require_admin,
+)
 from crowdteleop.coord.api.schemas import (
     AdminOverview,
+    DurationSummary,
     EpisodeView,
     ErrorBody,
+    HourCount,
     SessionSummary,
     SessionView,
     TeleopAccess,
     TeleopServerView,
 )
-from crowdteleop.coord.api.stats import completion_times, per_hour
-from crowdteleop.coord.db.tables import Session
+from crowdteleop.coord.db.tables import Episode, Session
 from crowdteleop.coord.guard.errors import ApiError
+from crowdteleop.coord.service.coordinator import Coordinator
+from crowdteleop.coord.service.workers import Workers
 from crowdteleop.recording.metadata import RegionChoice
 
 ERRORS: dict[int | str, dict[str, Any]] = {
@@ -61,84 +76,128 @@ def _round_trip_here_ms(session: Session) -> float | None:
 
 
 @router.get("/overview", response_model=AdminOverview)
-async def overview(coordinator: CoordinatorDep) -> AdminOverview:
+async def overview(
+    coordinator: CoordinatorDep, episodes: EpisodesDep, metrics: MetricsDep
+) -> AdminOverview:
     """Live sessions, the queue, the teleop servers, and the last day's demonstrations."""
     now = time.time()
-    store = coordinator.store
-    live = await store.live_sessions()
+    live = await coordinator.live_sessions()
     positions = await coordinator.queue_positions()
     summaries = [_summary(s, now, positions.get(s.id, (None, 0))[0]) for s in live]
-    servers = []
-    for session_id, slot in coordinator.pool.slots.items():
-        handle = slot.handle
-        servers.append(
-            TeleopServerView(
-                session_id=session_id,
-                url=handle.url if handle else None,
-                pid=getattr(handle, "pid", None),
-                alive=handle is not None and coordinator.pool.launcher.alive(handle),
-                started_at=slot.reserved_at,
-            )
+    servers = [
+        TeleopServerView(
+            session_id=server.session_id,
+            url=server.url,
+            pid=server.pid,
+            alive=server.alive,
+            started_at=server.started_at,
         )
-    episodes = await store.episodes()
+        for server in coordinator.servers()
+    ]
+    recorded = await episodes.all()
     return AdminOverview(
         now=now,
-        capacity=coordinator.pool.capacity,
+        capacity=coordinator.capacity,
         sessions=[s for s in summaries if s.state != "queued"],
         queue=[s for s in summaries if s.state == "queued"],
         teleop_servers=servers,
-        demos_per_hour=per_hour([e for e in episodes if e.created_at >= now - 86400], now),
-        completion_time_per_worker=completion_times(episodes, lambda e: e.worker_id),
-        completion_time_per_interface=completion_times(episodes, lambda e: e.interface),
-        totals=await store.totals(),
-        refusals=coordinator.metrics.refusal_counts(),
-        restarts=int(sum(coordinator.metrics.restarts_by_cause().values())),
+        demos_per_hour=per_hour([e for e in recorded if e.created_at >= now - 86400], now),
+        completion_time_per_worker=completion_times(recorded, lambda e: e.worker_id),
+        completion_time_per_interface=completion_times(recorded, lambda e: e.interface),
+        totals=await episodes.totals(),
+        refusals=metrics.refusal_counts(),
+        restarts=int(sum(metrics.restarts_by_cause().values())),
     )
 
 
-@router.get("/sessions/{session_id}", response_model=SessionView)
-async def session_view(session_id: SessionId, coordinator: CoordinatorDep) -> SessionView:
-    """Any session as its worker sees it."""
-    session = await coordinator.store.session(session_id)
+async def _existing(coordinator: Coordinator, session_id: str) -> Session:
+    session = await coordinator.session(session_id)
     if session is None:
         raise ApiError(404, "not_found", "no such session")
-    return await views.session_view(coordinator, session)
+    return session
+
+
+async def _view(coordinator: Coordinator, workers: Workers, session: Session) -> SessionView:
+    worker = await workers.worker(session.worker_id)
+    return await views.session_view(coordinator, session, worker)
+
+
+@router.get("/sessions/{session_id}", response_model=SessionView)
+async def session_view(
+    session_id: SessionId, coordinator: CoordinatorDep, workers: WorkersDep
+) -> SessionView:
+    """Any session as its worker sees it."""
+    return await _view(coordinator, workers, await _existing(coordinator, session_id))
 
 
 @router.get("/sessions/{session_id}/episodes", response_model=list[EpisodeView])
-async def session_episodes(session_id: SessionId, coordinator: CoordinatorDep) -> list[EpisodeView]:
+async def session_episodes(
+    session_id: SessionId, coordinator: CoordinatorDep, episodes: EpisodesDep
+) -> list[EpisodeView]:
     """The episodes a session's teleop server reported, oldest first."""
-    if await coordinator.store.session(session_id) is None:
-        raise ApiError(404, "not_found", "no such session")
+    await _existing(coordinator, session_id)
     return [
         EpisodeView.model_validate(episode, from_attributes=True)
-        for episode in await coordinator.store.episodes(session_id)
+        for episode in await episodes.of_session(session_id)
     ]
 
 
 @router.get("/sessions/{session_id}/teleop", response_model=TeleopAccess)
-async def teleop_access(session_id: SessionId, coordinator: CoordinatorDep) -> TeleopAccess:
+async def teleop_access(
+    session_id: SessionId, coordinator: CoordinatorDep, signaling: SignalingDep
+) -> TeleopAccess:
     """The session's teleop server URL and tokens, to attach a privileged bot (tests, demos)."""
-    session = await coordinator.store.session(session_id)
-    if session is None:
-        raise ApiError(404, "not_found", "no such session")
-    if session.state != "ready" or not session.teleop_url:
-        raise ApiError(409, "not_ready", f"the session is {session.state}, not ready")
-    keys = coordinator.keys
-    return TeleopAccess(
-        url=session.teleop_url,
-        token=keys.teleop_token(session.id),
-        admin_token=keys.teleop_admin_token(session.id),
-    )
+    door = signaling.door(await _existing(coordinator, session_id))
+    return TeleopAccess(url=door.url, token=door.token, admin_token=door.admin_token)
 
 
 @router.post("/sessions/{session_id}/end", response_model=SessionView)
-async def end_session(session_id: SessionId, coordinator: CoordinatorDep) -> SessionView:
+async def end_session(
+    session_id: SessionId, coordinator: CoordinatorDep, workers: WorkersDep
+) -> SessionView:
     """End a session by hand (reason 'error'); the slot goes to the next in line."""
-    session = await coordinator.store.session(session_id)
-    if session is None:
-        raise ApiError(404, "not_found", "no such session")
+    await _existing(coordinator, session_id)
     await coordinator.end(session_id, "error", error="ended by an admin")
-    ended = await coordinator.store.session(session_id)
-    assert ended is not None
-    return await views.session_view(coordinator, ended)
+    return await _view(coordinator, workers, await _existing(coordinator, session_id))
+
+
+# --- the overview's figures -------------------------------------------------------------------
+
+HOUR = 3600.0
+
+
+def per_hour(episodes: Iterable[Episode], now: float, hours: int = 24) -> list[HourCount]:
+    """Episodes and successes in each of the last `hours` clock hours, oldest first."""
+    current = now - now % HOUR
+    first = current - (hours - 1) * HOUR
+    counts = {first + i * HOUR: [0, 0] for i in range(hours)}
+    for episode in episodes:
+        bucket = episode.created_at - episode.created_at % HOUR
+        if bucket in counts:
+            counts[bucket][0] += 1
+            counts[bucket][1] += episode.outcome == "success"
+    return [HourCount(hour_start=h, episodes=e, successes=s) for h, (e, s) in counts.items()]
+
+
+def completion_times(
+    episodes: Iterable[Episode], key: Callable[[Episode], str | None]
+) -> list[DurationSummary]:
+    """Per key: how long successful episodes took (the paper's completion time)."""
+    groups: dict[str, list[Episode]] = defaultdict(list)
+    for episode in episodes:
+        groups[key(episode) or "unknown"].append(episode)
+    summaries = []
+    for name, group in sorted(groups.items()):
+        times = [e.duration_s for e in group if e.outcome == "success"]
+        summaries.append(
+            DurationSummary(
+                key=name,
+                successes=len(times),
+                episodes=len(group),
+                mean_s=round(statistics.fmean(times), 2) if times else None,
+                median_s=round(statistics.median(times), 2) if times else None,
+                min_s=round(min(times), 2) if times else None,
+                max_s=round(max(times), 2) if times else None,
+            )
+        )
+    return summaries

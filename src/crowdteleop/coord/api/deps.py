@@ -1,4 +1,5 @@
-"""FastAPI dependencies: the app's coordinator, and who is asking (worker, phone, admin)."""
+"""FastAPI dependencies: the services the lifespan put on `app.state`, and who is asking
+(worker, phone, admin)."""
 
 from __future__ import annotations
 
@@ -10,28 +11,74 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from crowdteleop.coord.db.tables import Session, Worker
 from crowdteleop.coord.guard.errors import ApiError
 from crowdteleop.coord.guard.security import same
+from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.coordinator import Coordinator
+from crowdteleop.coord.service.episodes import Episodes
 from crowdteleop.coord.service.guards import Guards
+from crowdteleop.coord.service.metrics import CoordMetrics
+from crowdteleop.coord.service.pairing import Pairing
+from crowdteleop.coord.service.signaling import Signaling
+from crowdteleop.coord.service.workers import Workers
 
 bearer_scheme = HTTPBearer(auto_error=False, description="worker, phone, admin or report token")
 Credentials = Annotated[HTTPAuthorizationCredentials | None, Depends(bearer_scheme)]
 SessionId = Annotated[str, Path(pattern=r"^s_[0-9a-f]{16}$", description="a session id")]
 
 
+# --- the services (set by create_app's lifespan) ---------------------------------------------
+
+
+def get_config(request: Request) -> CoordConfig:
+    config: CoordConfig = request.app.state.config
+    return config
+
+
 def get_coordinator(request: Request) -> Coordinator:
-    coordinator: Coordinator = request.app.state.coordinator  # set by create_app
+    coordinator: Coordinator = request.app.state.coordinator
     return coordinator
 
 
-CoordinatorDep = Annotated[Coordinator, Depends(get_coordinator)]
+def get_workers(request: Request) -> Workers:
+    workers: Workers = request.app.state.workers
+    return workers
+
+
+def get_pairing(request: Request) -> Pairing:
+    pairing: Pairing = request.app.state.pairing
+    return pairing
+
+
+def get_episodes(request: Request) -> Episodes:
+    episodes: Episodes = request.app.state.episodes
+    return episodes
+
+
+def get_signaling(request: Request) -> Signaling:
+    signaling: Signaling = request.app.state.signaling
+    return signaling
 
 
 def get_guards(request: Request) -> Guards:
-    guards: Guards = request.app.state.guards  # set by create_app
+    guards: Guards = request.app.state.guards
     return guards
 
 
+def get_metrics(request: Request) -> CoordMetrics:
+    metrics: CoordMetrics = request.app.state.metrics
+    return metrics
+
+
+ConfigDep = Annotated[CoordConfig, Depends(get_config)]
+CoordinatorDep = Annotated[Coordinator, Depends(get_coordinator)]
+WorkersDep = Annotated[Workers, Depends(get_workers)]
+PairingDep = Annotated[Pairing, Depends(get_pairing)]
+EpisodesDep = Annotated[Episodes, Depends(get_episodes)]
+SignalingDep = Annotated[Signaling, Depends(get_signaling)]
 GuardsDep = Annotated[Guards, Depends(get_guards)]
+MetricsDep = Annotated[CoordMetrics, Depends(get_metrics)]
+
+
+# --- who is asking ---------------------------------------------------------------------------
 
 
 def get_client(request: Request, guards: GuardsDep) -> str:
@@ -48,8 +95,8 @@ def token_of(credentials: HTTPAuthorizationCredentials | None) -> str | None:
     return credentials.credentials
 
 
-async def worker_for(coordinator: Coordinator, token: str | None) -> Worker:
-    worker, revoked = await coordinator.store.token_holder(token) if token else (None, False)
+async def worker_for(workers: Workers, token: str | None) -> Worker:
+    worker, revoked = await workers.holder(token) if token else (None, False)
     if revoked:
         raise ApiError(
             401,
@@ -62,8 +109,8 @@ async def worker_for(coordinator: Coordinator, token: str | None) -> Worker:
     return worker
 
 
-async def current_worker(coordinator: CoordinatorDep, credentials: Credentials) -> Worker:
-    return await worker_for(coordinator, token_of(credentials))
+async def current_worker(workers: WorkersDep, credentials: Credentials) -> Worker:
+    return await worker_for(workers, token_of(credentials))
 
 
 WorkerDep = Annotated[Worker, Depends(current_worker)]
@@ -71,7 +118,7 @@ WorkerDep = Annotated[Worker, Depends(current_worker)]
 
 async def owned(coordinator: Coordinator, session_id: str, worker: Worker) -> Session:
     """The session if it is this worker's; 404 otherwise (others' ids are not confirmed)."""
-    session = await coordinator.store.session(session_id)
+    session = await coordinator.session(session_id)
     if session is None or session.worker_id != worker.id:
         raise ApiError(404, "not_found", "no such session")
     return session
@@ -87,19 +134,19 @@ OwnedSession = Annotated[Session, Depends(owned_session)]
 
 
 async def require_admin(
-    coordinator: CoordinatorDep, credentials: Credentials, guards: GuardsDep, client: ClientDep
+    config: ConfigDep, credentials: Credentials, guards: GuardsDep, client: ClientDep
 ) -> None:
     """The admin token, with wrong guesses limited per address (429 past the limit)."""
     guards.check_admin(client)
     token = token_of(credentials)
-    if token is None or not same(token, coordinator.config.admin_token):
+    if token is None or not same(token, config.admin_token):
         guards.admin_failed(client)
         raise ApiError(401, "unauthorized", "the admin token is required")
 
 
-async def phone_session(coordinator: CoordinatorDep, credentials: Credentials) -> Session:
+async def phone_session(pairing: PairingDep, credentials: Credentials) -> Session:
     token = token_of(credentials)
-    session = await coordinator.store.pairing.session_of_phone(token) if token else None
+    session = await pairing.session_of_phone(token) if token else None
     if session is None:
         raise ApiError(401, "unauthorized", "a valid phone token is required (from /api/pair)")
     return session

@@ -4,21 +4,23 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Body, Path, Query, Request
+from fastapi import APIRouter, Body, Path, Query
 
 from crowdteleop.coord.api.deps import (
     ClientDep,
+    ConfigDep,
     CoordinatorDep,
     GuardsDep,
     OwnedSession,
     SessionId,
+    SignalingDep,
     WorkerDep,
+    WorkersDep,
     owned,
     token_of,
     worker_for,
 )
 from crowdteleop.coord.api.deps import Credentials as CredentialsDep
-from crowdteleop.coord.api.regions import region_choice
 from crowdteleop.coord.api.schemas import (
     CampaignView,
     ErrorBody,
@@ -30,11 +32,10 @@ from crowdteleop.coord.api.schemas import (
     SessionView,
 )
 from crowdteleop.coord.api.views import session_view
-from crowdteleop.coord.db.store import SessionInUseError
-from crowdteleop.coord.fleet.teleop_http import forward_offer
+from crowdteleop.coord.db.tables import Worker
 from crowdteleop.coord.guard.errors import ApiError
-from crowdteleop.coord.guard.identity import identify
 from crowdteleop.coord.service.campaign import NAME_PATTERN, CampaignConfig
+from crowdteleop.coord.service.coordinator import Coordinator
 from crowdteleop.teleop.messages import OfferAnswer
 
 ERRORS: dict[int | str, dict[str, Any]] = {
@@ -58,93 +59,56 @@ def campaign_view(campaign: CampaignConfig) -> CampaignView:
 
 @router.get("/campaigns/{name}", response_model=CampaignView)
 async def campaign(
-    name: Annotated[str, Path(pattern=NAME_PATTERN)], coordinator: CoordinatorDep
+    name: Annotated[str, Path(pattern=NAME_PATTERN)],
+    config: ConfigDep,
+    coordinator: CoordinatorDep,
 ) -> CampaignView:
     """What the join page shows before anyone agrees: the task, how many demonstrations and
     how long it takes. `default` is the campaign a link without `campaign=` joins."""
-    chosen = coordinator.config.campaign(name)
+    chosen = config.campaign(name)
     if chosen is None and name == "default":
-        chosen = coordinator.config.default_campaign
+        chosen = config.default_campaign
     if chosen is None:
         raise ApiError(404, "unknown_campaign", f"no campaign named {name!r}")
-    typical = await coordinator.waits.mean_session_s(-1.0)
+    typical = await coordinator.typical_session_s()
     view = campaign_view(chosen)
     return view.model_copy(
         update={
-            "typical_session_s": round(typical) if typical > 0 else None,
-            "region": coordinator.config.region,
+            "typical_session_s": round(typical) if typical is not None else None,
+            "region": config.region,
         }
     )
 
 
 @router.post("/join", response_model=JoinResponse)
 async def join(
-    body: JoinRequest, coordinator: CoordinatorDep, guards: GuardsDep, client: ClientDep
+    body: JoinRequest, workers: WorkersDep, guards: GuardsDep, client: ClientDep
 ) -> JoinResponse:
     """Register (or recognise) the worker a join link names; returns their bearer token.
 
     Joins are rate limited per address and in total (429). A campaign may refuse links
     without study ids (403). A study id whose session is open in another browser is refused
     (409 `in_use`) unless this browser presents its earlier token or asks to take over."""
-    campaign = coordinator.config.campaign(body.campaign)
-    if campaign is None:
-        raise ApiError(404, "unknown_campaign", f"no campaign named {body.campaign!r}")
-    who = identify(body.params)
-    if who.source == "anonymous" and not campaign.allow_anonymous:
-        guards.metrics.refused("anonymous")
-        raise ApiError(
-            403,
-            "study_link_required",
-            "this study is open to its participants only: please use the link your study "
-            "platform (Prolific or MTurk) gave you",
-        )
-    try:
-        region = region_choice(coordinator.config, campaign, body.region_rtts_ms)
-    except ApiError:
-        guards.metrics.refused("unknown_region")
-        raise
+    link = workers.check_link(body.campaign, body.params, body.region_rtts_ms)
     guards.admit_join(client)
-    try:
-        worker, token, _created = await coordinator.store.join(
-            campaign.name,
-            who.source,
-            who.external_id,
-            who.study_id,
-            who.external_session,
-            body.params,
-            presented_token=body.worker_token,
-            take_over=body.take_over,
-        )
-    except SessionInUseError as exc:
-        guards.metrics.refused("in_use")
-        raise ApiError(
-            409,
-            "in_use",
-            "Your session is open in another browser. Continue there, or take it over here "
-            "(the other one will stop).",
-        ) from exc
-    if region is not None or worker.region is not None:
-        choice = region.model_dump() if region is not None else None
-        await coordinator.store.set_worker_region(worker.id, choice)
-    guards.metrics.joins.labels(source=who.source).inc()
+    worker, token = await workers.join(link, body.worker_token, body.take_over)
     return JoinResponse(
         worker_id=worker.id,
         worker_token=token,
-        source=who.source,
-        campaign=campaign_view(campaign),
+        source=link.who.source,
+        campaign=campaign_view(link.campaign),
     )
 
 
 @router.post("/sessions", response_model=SessionView)
 async def create_session(
-    worker: WorkerDep, coordinator: CoordinatorDep, client: ClientDep
+    worker: WorkerDep, workers: WorkersDep, coordinator: CoordinatorDep, client: ClientDep
 ) -> SessionView:
     """The worker's live session, or a new one: ready soon, or queued when the pool is full.
     A new one is refused when its network has too many open (429), the queue is full or the
     wait too long (503, with Retry-After)."""
-    campaign = coordinator.config.campaign(worker.campaign) or coordinator.config.default_campaign
-    tag = coordinator.keys.client_tag(client)
-    session = await coordinator.create_session(worker, campaign, tag)
+    campaign = workers.campaign_of(worker)
+    session = await coordinator.create_session(worker, campaign, client)
     return await session_view(coordinator, session, worker)
 
 
@@ -164,13 +128,14 @@ async def heartbeat(
 ) -> SessionView:
     """Keeps the session (or its place in the queue); silence ends it as abandoned."""
     await coordinator.heartbeat(session, body.interface if body else None)
-    refreshed = await coordinator.store.session(session.id) or session
+    refreshed = await coordinator.session(session.id) or session
     return await session_view(coordinator, refreshed, worker)
 
 
 @router.post("/sessions/{session_id}/leave", response_model=SessionView)
 async def leave(
     session_id: SessionId,
+    workers: WorkersDep,
     coordinator: CoordinatorDep,
     credentials: CredentialsDep,
     token: Annotated[
@@ -178,7 +143,7 @@ async def leave(
     ] = None,
 ) -> SessionView:
     """End the session now and free its slot (the page calls this on pagehide)."""
-    worker = await worker_for(coordinator, token_of(credentials) or token)
+    worker = await worker_for(workers, token_of(credentials) or token)
     session = await owned(coordinator, session_id, worker)
     return await _end(coordinator, session.id, worker)
 
@@ -190,15 +155,14 @@ async def delete_session(
     return await _end(coordinator, session.id, worker)
 
 
-async def _end(coordinator: CoordinatorDep, session_id: str, worker: WorkerDep) -> SessionView:
+async def _end(coordinator: Coordinator, session_id: str, worker: Worker) -> SessionView:
     await coordinator.end(session_id, "left")
-    session = await coordinator.store.session(session_id)
+    session = await coordinator.session(session_id)
     assert session is not None
     return await session_view(coordinator, session, worker)
 
 
 @router.post("/sessions/{session_id}/offer", response_model=OfferAnswer)
-async def offer(body: OfferBody, session: OwnedSession, request: Request) -> OfferAnswer:
+async def offer(body: OfferBody, session: OwnedSession, signaling: SignalingDep) -> OfferAnswer:
     """WebRTC offer for the session's teleop server (role worker); 409 until it is ready."""
-    token = request.app.state.coordinator.keys.teleop_token(session.id)
-    return await forward_offer(request.app.state.http, session, token, body, "worker")
+    return await signaling.offer(session, body.sdp, "worker")

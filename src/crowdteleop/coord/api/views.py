@@ -13,12 +13,13 @@ PROLIFIC_COMPLETE = "https://app.prolific.com/submissions/complete?cc="
 
 
 async def session_view(
-    coordinator: Coordinator, session: Session, worker: Worker | None = None
+    coordinator: Coordinator, session: Session, worker: Worker | None
 ) -> SessionView:
+    """The session as its worker's page sees it (`worker`: whose it is, for the study's way
+    back; None if unknown)."""
     position, eta = None, None
     if session.state == "queued":
         position, eta = (await coordinator.queue_positions()).get(session.id, (None, None))
-    worker = worker or await coordinator.store.worker(session.worker_id)
     redirect = None
     if session.completion_code and worker is not None and worker.source == "prolific":
         redirect = PROLIFIC_COMPLETE + session.completion_code
@@ -41,7 +42,7 @@ async def session_view(
         demos_required=session.demos_required,
         completion_code=session.completion_code,
         redirect_url=redirect,
-        ice_servers=coordinator.configs.ice_servers(session.id),
+        ice_servers=coordinator.ice_servers(session.id),
         ice_transport_policy=coordinator.config.ice_transport_policy,
         ended_reason=session.ended_reason,
         notice=_notice(session),

@@ -3,7 +3,7 @@
 Every replica writes its row in `replicas` at each reaper sweep. A session's teleop server is
 watched by the replica named in `sessions.replica`; when that replica's row is gone (it
 stopped) or silent for `stale_after_s` (it was killed), another takes the session over
-(`takeover.adopt`). The admission lock is an asyncio lock in each process and, on
+(`Replication.adopt`). The admission lock is an asyncio lock in each process and, on
 PostgreSQL, a transaction-level advisory lock shared by every replica: admissions are
 decided one at a time, so the queue stays strictly FIFO and the capacity is never exceeded
 however many replicas serve the campaign. SQLite serves one replica (one machine).

@@ -1,29 +1,27 @@
-"""A cluster launcher's capacity is the cluster's, and changes as nodes come and go: each
-reaper sweep reads it (less every replica's warm spares, which hold slots there too), admits queued
-sessions into new room, and tells the cluster how many sessions want a slot."""
+"""A cluster launcher's room is the cluster's, and changes as nodes come and go: read again at
+each reaper sweep, less every replica's warm spares (which hold slots there too); and the
+cluster is told how many sessions want a slot, for its autoscaler."""
 
 from __future__ import annotations
 
 import asyncio
-import logging
 
-from crowdteleop.coord.fleet.launcher import ClusterLauncher
-from crowdteleop.coord.service.coordinator import Coordinator
-
-log = logging.getLogger(__name__)
+from crowdteleop.coord.db.spare_registry import SpareRegistry
+from crowdteleop.coord.fleet.launcher import ClusterLauncher, Launcher
 
 
-async def follow_cluster(coordinator: Coordinator, admit: bool = True) -> None:
-    launcher = coordinator.pool.launcher
-    if not isinstance(launcher, ClusterLauncher):
-        return
-    slots = await asyncio.to_thread(launcher.capacity)
-    capacity = max(0, slots - await coordinator.spares.registry.count())  # every replica's
-    if capacity != coordinator.pool.capacity:
-        log.info("cluster capacity %d -> %d sessions", coordinator.pool.capacity, capacity)
-        coordinator.pool.capacity = capacity
-        coordinator.metrics.capacity.set(capacity)
-        if admit:
-            await coordinator.admit()
-    live = await coordinator.store.live_sessions()
-    await asyncio.to_thread(launcher.request, len(live) + coordinator.config.spare_servers)
+class ClusterRoom:
+    def __init__(self, launcher: Launcher, spares: SpareRegistry) -> None:
+        self.launcher, self.spares = launcher, spares
+
+    async def sessions(self) -> int | None:
+        """How many sessions the cluster holds now; None for a launcher of fixed size."""
+        if not isinstance(self.launcher, ClusterLauncher):
+            return None
+        slots = await asyncio.to_thread(self.launcher.capacity)
+        return max(0, slots - await self.spares.count())  # every replica's
+
+    async def request(self, sessions: int) -> None:
+        """Ask for room for `sessions` at once (a no-op off a cluster, or without autoscaler)."""
+        if isinstance(self.launcher, ClusterLauncher):
+            await asyncio.to_thread(self.launcher.request, sessions)

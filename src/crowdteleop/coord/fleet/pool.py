@@ -1,4 +1,5 @@
-"""The slots of the teleop server pool: who holds one, and the server behind it."""
+"""The slots of the teleop server pool: who holds one, the server behind it, and how that
+server last answered its health probe."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import time
 from dataclasses import dataclass, field
 
 from crowdteleop.coord.fleet.launcher import Launcher, ReattachingLauncher, TeleopHandle
+from crowdteleop.teleop.messages import TeleopHealth
 
 log = logging.getLogger(__name__)
 
@@ -20,6 +22,18 @@ class Slot:
     handle: TeleopHandle | None = None  # None while the server is starting
     healthy_at: float = field(default_factory=time.monotonic)  # its last good health probe
     spool_pending: int = 0  # episodes its spool holds for the object store, at that probe
+
+
+@dataclass(frozen=True)
+class ServerState:
+    """A slot as the admin page and `/metrics` see it."""
+
+    session_id: str
+    url: str | None  # None while its server starts
+    pid: int | None  # a local process's (None for a cluster's)
+    alive: bool
+    started_at: float
+    spool_pending: int
 
 
 class TeleopPool:
@@ -35,7 +49,7 @@ class TeleopPool:
         self._closing = asyncio.Event()
 
     def reserve(self, session_id: str) -> Slot:
-        """The caller counted a free slot in the database (`Coordinator.free_slots`)."""
+        """The caller counted a free slot in the database (every replica's sessions hold some)."""
         slot = self.slots[session_id] = Slot(session_id)
         return slot
 
@@ -48,18 +62,33 @@ class TeleopPool:
         log.info("session %s: its teleop server %s is still running", session_id, handle.url)
         return True
 
-    def holds(self, session_id: str) -> bool:
-        return session_id in self.slots
+    def started(self, session_id: str, handle: TeleopHandle) -> bool:
+        """The session's server is up: its slot holds it, probed from now on; False if the slot
+        was given back meanwhile (the session ended while its server started)."""
+        slot = self.slots.get(session_id)
+        if slot is None:
+            return False
+        slot.handle = handle
+        slot.healthy_at = time.monotonic()
+        return True
 
     def handle(self, session_id: str) -> TeleopHandle | None:
         slot = self.slots.get(session_id)
         return slot.handle if slot else None
 
-    def release(self, session_id: str) -> None:
-        """Give the slot back now; stop its server (if any) in the background."""
+    def release(self, session_id: str, delay_s: float = 0.0) -> None:
+        """Give the slot back now; stop its server (if any) in the background, after
+        `delay_s` (a grace the pool's closing cuts short)."""
         slot = self.slots.pop(session_id, None)
         if slot is not None and slot.handle is not None:
-            self.stop_later(slot.handle)
+            self.stop_later(slot.handle, delay_s)
+
+    async def kill(self, session_id: str) -> None:
+        """Give the slot back and kill its server now, waiting until it is gone (a hung one
+        can finish nothing, and must not hold the session's files for the next)."""
+        slot = self.slots.pop(session_id, None)
+        if slot is not None and slot.handle is not None:
+            await self.launcher.stop(slot.handle, grace_s=0.0)
 
     def forget(self, session_id: str) -> None:
         """Another replica watches this session's server now: let go of it, running."""
@@ -81,6 +110,34 @@ class TeleopPool:
             await self.launcher.stop(handle)
         except Exception:
             log.exception("stopping teleop server %s failed", handle.url)
+
+    def running(self) -> list[tuple[str, TeleopHandle]]:
+        """(session id, server) of every slot whose server has started."""
+        return [(sid, slot.handle) for sid, slot in self.slots.items() if slot.handle is not None]
+
+    def heard(self, session_id: str, health: TeleopHealth | None, now: float) -> float:
+        """Record a probe's answer (None: no good answer in time); how long the server has
+        been silent since its last good one (0.0 for a slot given up meanwhile)."""
+        slot = self.slots.get(session_id)
+        if slot is None:
+            return 0.0
+        if health is not None:
+            slot.healthy_at = now
+            slot.spool_pending = health.spool_pending
+        return now - slot.healthy_at
+
+    def servers(self) -> list[ServerState]:
+        return [
+            ServerState(
+                session_id=session_id,
+                url=slot.handle.url if slot.handle else None,
+                pid=getattr(slot.handle, "pid", None),
+                alive=slot.handle is not None and self.launcher.alive(slot.handle),
+                started_at=slot.reserved_at,
+                spool_pending=slot.spool_pending,
+            )
+            for session_id, slot in self.slots.items()
+        ]
 
     def alive(self, session_id: str) -> bool | None:
         """None while starting (no server yet)."""

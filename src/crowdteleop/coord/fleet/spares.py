@@ -30,6 +30,7 @@ from crowdteleop.coord.fleet.launcher import (
     reattach,
     server_name,
 )
+from crowdteleop.coord.fleet.teleop_http import assign
 from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.messages import Assignment
 
@@ -117,7 +118,7 @@ class SparePool:
             if handle is None or not self.launcher.alive(handle):
                 continue
             try:
-                await _assign(handle.url, self.admin_token_of(row.id), assignment)
+                await assign(handle.url, self.admin_token_of(row.id), assignment)
             except (aiohttp.ClientError, TimeoutError, LaunchError) as exc:
                 log.warning("spare at %s refused its session: %s", handle.url, exc)
                 await self.launcher.stop(handle)
@@ -197,13 +198,3 @@ class SparePool:
         if isinstance(self.launcher, ReattachingLauncher):
             self.launcher.release(handle)
 
-
-async def _assign(url: str, admin_token: str, assignment: Assignment) -> None:
-    headers = {"Authorization": f"Bearer {admin_token}", "Content-Type": "application/json"}
-    timeout = aiohttp.ClientTimeout(total=10)
-    async with (
-        aiohttp.ClientSession(timeout=timeout) as http,
-        http.post(f"{url}/assign", data=assignment.model_dump_json(), headers=headers) as response,
-    ):
-        if response.status != 200:
-            raise LaunchError(f"assign answered {response.status}: {await response.text()}")

@@ -1,4 +1,6 @@
-"""WebRTC signaling through the coordinator: the browser never learns the session's token."""
+"""The teleop server's HTTP API as the coordinator calls it: a worker's or phone's WebRTC offer
+(forwarded with the session's token, which the browser never learns), a warm spare's
+assignment (`POST /assign`), and the health probe (`GET /health`)."""
 
 from __future__ import annotations
 
@@ -6,10 +8,16 @@ import logging
 
 import aiohttp
 
-from crowdteleop.coord.api.schemas import OfferBody
 from crowdteleop.coord.db.tables import Session
+from crowdteleop.coord.fleet.launcher import LaunchError
 from crowdteleop.coord.guard.errors import ApiError
-from crowdteleop.teleop.messages import OfferAnswer, OfferRequest, missing_offer_sections
+from crowdteleop.teleop.messages import (
+    Assignment,
+    OfferAnswer,
+    OfferRequest,
+    TeleopHealth,
+    missing_offer_sections,
+)
 from crowdteleop.teleop.protocol import PeerRole
 
 log = logging.getLogger(__name__)
@@ -18,17 +26,17 @@ OFFER_TIMEOUT_S = 20.0
 
 
 async def forward_offer(
-    http: aiohttp.ClientSession, session: Session, token: str, offer: OfferBody, role: PeerRole
+    http: aiohttp.ClientSession, session: Session, token: str, sdp: str, role: PeerRole
 ) -> OfferAnswer:
     """POST the offer with the session's teleop `token` (`SessionKeys.teleop_token`) to its
     teleop server; its refusals come back as 4xx. No `Origin` header: a server-to-server call,
     which the teleop server's origin check lets through."""
     if session.state != "ready" or not session.teleop_url:
         raise ApiError(409, "not_ready", f"the session is {session.state}, not ready")
-    missing = missing_offer_sections(offer.sdp, role)
+    missing = missing_offer_sections(sdp, role)
     if missing:  # refused here as the teleop server would: no round trip, no peer
         raise ApiError(400, "incomplete_offer", f"the offer has no {' or '.join(missing)} section")
-    body = OfferRequest(sdp=offer.sdp, token=token, role=role)
+    body = OfferRequest(sdp=sdp, token=token, role=role)
     try:
         async with http.post(
             f"{session.teleop_url}/offer",
@@ -53,3 +61,27 @@ async def forward_offer(
     # 401/403 would be our own token being wrong, 503 a full session: neither is the caller's
     # input, so both say the session cannot take this connection now.
     raise ApiError(409, str(code), str(message) or f"the robot's server refused ({status})")
+
+
+async def assign(url: str, admin_token: str, assignment: Assignment) -> None:
+    """Give a warm spare its session (`LaunchError` if it refuses)."""
+    headers = {"Authorization": f"Bearer {admin_token}", "Content-Type": "application/json"}
+    timeout = aiohttp.ClientTimeout(total=10)
+    async with (
+        aiohttp.ClientSession(timeout=timeout) as http,
+        http.post(f"{url}/assign", data=assignment.model_dump_json(), headers=headers) as response,
+    ):
+        if response.status != 200:
+            raise LaunchError(f"assign answered {response.status}: {await response.text()}")
+
+
+async def health(http: aiohttp.ClientSession, url: str, timeout_s: float) -> TeleopHealth | None:
+    """The server's health, or None without a good answer in time."""
+    try:
+        timeout = aiohttp.ClientTimeout(total=timeout_s)
+        async with http.get(f"{url}/health", timeout=timeout) as response:
+            if response.status != 200:
+                return None
+            return TeleopHealth.model_validate_json(await response.read())
+    except (aiohttp.ClientError, TimeoutError, ValueError):  # ValidationError is a ValueError
+        return None

@@ -1,6 +1,8 @@
-"""Time and connection limits of the coordinator's HTTP server, so slow or many clients cannot
-hold it (docs/coordination.md, "Configuration").
+"""Size, time and connection limits of the coordinator's HTTP server, so big, slow or many
+clients cannot hold it (docs/coordination.md, "Configuration").
 
+- `BodyLimitMiddleware`: a request body over `max_body_bytes` is refused (413) before any
+  handler reads it.
 - `BodyTimeoutMiddleware`: a request body must arrive whole within `body_timeout_s` of the
   first read, else 408 and the connection is closed.
 - `HeaderTimeoutProtocol`: a connection must send a request's headers within
@@ -15,18 +17,70 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
-from typing import Any
+from typing import Any, Protocol
 
 import h11
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from crowdteleop.coord.guard.errors import error_response
-from crowdteleop.coord.service.config import CoordConfig
 
 log = logging.getLogger(__name__)
 
 KEEP_ALIVE_S = 5  # uvicorn's default: an idle keep-alive connection is closed after this
+
+
+class BodyLimitMiddleware:
+    """Refuses bodies over `max_bytes` (413) before any handler reads them."""
+
+    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+        self.app, self.max_bytes = app, max_bytes
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        declared = dict(scope.get("headers") or []).get(b"content-length")
+        if declared is not None:
+            try:
+                too_big = int(declared) > self.max_bytes
+            except ValueError:
+                too_big = False  # the server refuses a malformed length itself
+            if too_big:
+                await self._refuse(scope, receive, send)
+                return
+        chunks: list[bytes] = []
+        size = 0
+        while True:
+            message = await receive()
+            if message["type"] != "http.request":
+                await self.app(scope, _replay([message], receive), send)
+                return
+            chunk = message.get("body", b"")
+            size += len(chunk)
+            if size > self.max_bytes:
+                await self._refuse(scope, receive, send)
+                return
+            chunks.append(chunk)
+            if not message.get("more_body", False):
+                break
+        body = {"type": "http.request", "body": b"".join(chunks), "more_body": False}
+        await self.app(scope, _replay([body], receive), send)
+
+    async def _refuse(self, scope: Scope, receive: Receive, send: Send) -> None:
+        message = f"request bodies are limited to {self.max_bytes} bytes"
+        await error_response(413, "too_large", message)(scope, receive, send)
+
+
+def _replay(messages: list[Message], receive: Receive) -> Receive:
+    pending = list(messages)
+
+    async def replayed() -> Message:
+        if pending:
+            return pending.pop(0)
+        return await receive()
+
+    return replayed
 
 
 class BodyTimeoutError(Exception):
@@ -174,7 +228,17 @@ def listening_socket(host: str, port: int) -> socket.socket:
     return sock
 
 
-def uvicorn_options(config: CoordConfig) -> dict[str, Any]:
+class ConnectionLimits(Protocol):
+    """What a listener's limits are read from (the coordinator's settings)."""
+
+    @property
+    def max_connections(self) -> int: ...
+
+    @property
+    def header_timeout_s(self) -> float: ...
+
+
+def uvicorn_options(config: ConnectionLimits) -> dict[str, Any]:
     """`uvicorn.Config` keyword arguments for a listener of the coordinator.
 
     `proxy_headers=False`: uvicorn would otherwise rewrite the client's address from

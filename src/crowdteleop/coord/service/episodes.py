@@ -1,52 +1,83 @@
 """Episode reports from teleop servers: each recorded once; the last required success
-completes the session with its completion code."""
+completes the session with its completion code. And the recorded episodes, for the admin."""
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
-from crowdteleop.coord.api.schemas import EpisodeAck
+from crowdteleop.coord.db.store import Store
 from crowdteleop.coord.db.tables import Episode, Session
 from crowdteleop.coord.guard.security import new_completion_code
+from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.coordinator import Coordinator
+from crowdteleop.coord.service.metrics import CoordMetrics
 from crowdteleop.teleop.messages import EpisodeReport
 
 
-async def report_episode(
-    coordinator: Coordinator, session: Session, report: EpisodeReport
-) -> EpisodeAck:
-    """Record the episode (once); the last required success completes the session."""
-    interface = report.device if report.device not in (None, "bot") else session.interface
-    new, done = await coordinator.store.add_episode(
-        Episode(
-            episode_id=report.episode_id,
-            session_id=session.id,
-            worker_id=session.worker_id,
-            number=report.episode,
-            outcome=report.outcome,
-            steps=report.steps,
-            duration_s=report.duration_s,
-            uri=report.uri,
-            interface=interface,
-            task=session.task,
-            telemetry=report.telemetry,
-            created_at=time.time(),
+@dataclass(frozen=True)
+class Recorded:
+    """What recording a report did."""
+
+    new: bool  # False: a retried report, counted before
+    demos_done: int
+    completed: bool  # this report completed the session
+
+
+class Episodes:
+    def __init__(
+        self, store: Store, config: CoordConfig, metrics: CoordMetrics, coordinator: Coordinator
+    ) -> None:
+        self._episodes, self._sessions = store.episodes, store.sessions
+        self._config, self._metrics, self._coordinator = config, metrics, coordinator
+
+    async def reporting_session(self, report_token: str) -> Session | None:
+        """The session whose teleop server holds `report_token`."""
+        return await self._sessions.session_by_report_token(report_token)
+
+    async def record(self, session: Session, report: EpisodeReport) -> Recorded:
+        """Record the episode (once); the last required success completes the session."""
+        interface = report.device if report.device not in (None, "bot") else session.interface
+        new, done = await self._episodes.add_episode(
+            Episode(
+                episode_id=report.episode_id,
+                session_id=session.id,
+                worker_id=session.worker_id,
+                number=report.episode,
+                outcome=report.outcome,
+                steps=report.steps,
+                duration_s=report.duration_s,
+                uri=report.uri,
+                interface=interface,
+                task=session.task,
+                telemetry=report.telemetry,
+                created_at=time.time(),
+            )
         )
-    )
-    if new:
-        coordinator.metrics.episodes.labels(outcome=report.outcome).inc()
-    completed = False
-    if new and report.outcome == "success" and done >= session.demos_required:
-        campaign = coordinator.config.campaign(session.campaign)
-        code = (campaign.prolific_completion_code if campaign else None) or (new_completion_code())
-        # A short grace lets the page hear about the saved episode before the server goes.
-        completed = await coordinator.end(
-            session.id, "completed", completion_code=code, stop_delay_s=2.0
-        )
-    return EpisodeAck(
-        episode_id=report.episode_id,
-        duplicate=not new,
-        demos_done=done,
-        demos_required=session.demos_required,
-        completed=completed,
-    )
+        if new:
+            self._metrics.episodes.labels(outcome=report.outcome).inc()
+        completed = False
+        if new and report.outcome == "success" and done >= session.demos_required:
+            campaign = self._config.campaign(session.campaign)
+            code = (campaign.prolific_completion_code if campaign else None) or (
+                new_completion_code()
+            )
+            # A short grace lets the page hear about the saved episode before the server goes.
+            completed = await self._coordinator.end(
+                session.id, "completed", completion_code=code, stop_delay_s=2.0
+            )
+        return Recorded(new, done, completed)
+
+    async def of_session(self, session_id: str) -> list[Episode]:
+        """A session's episodes, oldest first."""
+        return await self._episodes.episodes(session_id)
+
+    async def all(self) -> list[Episode]:
+        return await self._episodes.episodes()
+
+    async def since(self, since: float) -> list[Episode]:
+        return await self._episodes.episodes_since(since)
+
+    async def totals(self) -> dict[str, int]:
+        """Workers, sessions, completed sessions, episodes and successes so far."""
+        return await self._episodes.totals()

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 from starlette.requests import HTTPConnection
 
 from crowdteleop.coord.db.shared_limits import SharedWindowLimiter
+from crowdteleop.coord.db.store import Store
 from crowdteleop.coord.guard.clients import ProxyTrust, client_key
 from crowdteleop.coord.guard.errors import ApiError
 from crowdteleop.coord.guard.limits import WindowLimiter, retry_after
@@ -36,23 +36,18 @@ class Guards:
     admin_failures_per_address: WindowLimiter
 
     @classmethod
-    def of(
-        cls,
-        config: CoordConfig,
-        metrics: CoordMetrics,
-        transactions: async_sessionmaker[AsyncSession],
-    ) -> Guards:
+    def of(cls, config: CoordConfig, metrics: CoordMetrics, store: Store) -> Guards:
         admission = config.admission
         return cls(
             trust=ProxyTrust.of(config.trusted_proxies),
             metrics=metrics,
             joins_per_address=WindowLimiter(admission.joins_per_minute_per_address),
             joins_total=WindowLimiter(admission.joins_per_minute),
-            pair_failures_per_address=SharedWindowLimiter(
-                transactions, "pair_failures_address", config.pair_failures_per_minute
+            pair_failures_per_address=store.limiter(
+                "pair_failures_address", config.pair_failures_per_minute
             ),
-            pair_failures_total=SharedWindowLimiter(
-                transactions, "pair_failures_total", config.pair_failures_per_minute_total
+            pair_failures_total=store.limiter(
+                "pair_failures_total", config.pair_failures_per_minute_total
             ),
             admin_failures_per_address=WindowLimiter(config.admin_failures_per_minute),
         )

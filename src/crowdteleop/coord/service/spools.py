@@ -13,14 +13,12 @@ from __future__ import annotations
 import asyncio
 import logging
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+from crowdteleop.coord.db.sessions import SessionStore
+from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.recording.s3 import S3Config, S3Storage
 from crowdteleop.recording.spool import SpooledStorage
 from crowdteleop.teleop.config import TeleopConfig
-
-if TYPE_CHECKING:
-    from crowdteleop.coord.service.coordinator import Coordinator
 
 log = logging.getLogger(__name__)
 SWEEP_INTERVAL_S = 10.0
@@ -39,29 +37,26 @@ def _drain(s3: S3Config, spool: Path) -> int:
         storage.close()
 
 
-async def sweep_once(coordinator: Coordinator) -> int:
-    """Drain the spools of ended sessions once; the number of episodes uploaded."""
-    storage = TeleopConfig.model_validate(coordinator.config.teleop).recording.storage
-    if storage.kind != "s3" or storage.s3 is None or storage.spool_directory is not None:
-        return 0  # nothing spooled, or one shared spool that live servers drain themselves
-    uploaded = 0
-    for spool in sorted((coordinator.config.data_dir / "episodes").glob("*/*/spool")):
-        if not any(spool.glob("*.json")):
-            continue
-        session = await coordinator.store.session(spool.parent.name)
-        if session is None or session.state != "ended":
-            continue  # a live (or relaunching) server owns this spool
-        count = await asyncio.to_thread(_drain, storage.s3, spool)
-        if count:
-            log.info("uploaded %d episode(s) left in the spool of %s", count, session.id)
-        uploaded += count
-    return uploaded
+class SpoolSweeper:
+    """Drains the spools of ended sessions (the Coordinator runs it every `SWEEP_INTERVAL_S`)."""
 
+    def __init__(self, config: CoordConfig, sessions: SessionStore) -> None:
+        self.config, self.sessions = config, sessions
 
-async def run_spool_sweeper(coordinator: Coordinator) -> None:
-    while True:
-        await asyncio.sleep(SWEEP_INTERVAL_S)
-        try:
-            await sweep_once(coordinator)
-        except Exception:  # the store may still be down: try again next time
-            log.exception("sweeping the spools of ended sessions failed")
+    async def sweep_once(self) -> int:
+        """Drain the spools of ended sessions once; the number of episodes uploaded."""
+        storage = TeleopConfig.model_validate(self.config.teleop).recording.storage
+        if storage.kind != "s3" or storage.s3 is None or storage.spool_directory is not None:
+            return 0  # nothing spooled, or one shared spool that live servers drain themselves
+        uploaded = 0
+        for spool in sorted((self.config.data_dir / "episodes").glob("*/*/spool")):
+            if not any(spool.glob("*.json")):
+                continue
+            session = await self.sessions.session(spool.parent.name)
+            if session is None or session.state != "ended":
+                continue  # a live (or relaunching) server owns this spool
+            count = await asyncio.to_thread(_drain, storage.s3, spool)
+            if count:
+                log.info("uploaded %d episode(s) left in the spool of %s", count, session.id)
+            uploaded += count
+        return uploaded
