@@ -20,14 +20,13 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from crowdteleop.dataset.absolute import AbsoluteTargets, absolute_controller_configs
+from crowdteleop.dataset.absolute import AbsoluteTargets
 from crowdteleop.dataset.robosuite_replay import (
     RecordedEpisode,
     RobosuiteReplayer,
     record_scripted_episode_in_memory,
 )
 from crowdteleop.sim import SimConfig, make_simulation
-from crowdteleop.tasks import get_task
 
 app = typer.Typer(add_completion=False)
 AFTER = (5, 20, 40)
@@ -41,17 +40,19 @@ def absolute_actions(episode: RecordedEpisode) -> np.ndarray:
     finally:
         sim.close()
     kinematics = dataclasses.replace(kinematics, mjcf_xml=episode.mjcf_xml)
-    arm = episode.env_kwargs["controller_configs"]["body_parts"]["right"]
+    arm = episode.env_args.arm
+    assert arm is not None, "a robosuite task's env_args name its controller"
     return AbsoluteTargets(kinematics, arm).of(np.array(episode.states_before), episode.actions)
 
 
 def replay(episode: RecordedEpisode, absolute: bool) -> dict[str, object]:
-    kwargs = dict(episode.env_kwargs)
+    env_args = episode.env_args
     actions = episode.actions
     if absolute:
-        kwargs["controller_configs"] = absolute_controller_configs(kwargs["controller_configs"])
+        assert env_args.controller is not None, "a robosuite task's env_args name its controller"
+        env_args = env_args.with_controller(env_args.controller.absolute())
         actions = absolute_actions(episode)
-    replayer = RobosuiteReplayer(get_task(episode.task).env_name, kwargs, episode.mjcf_xml)
+    replayer = RobosuiteReplayer(env_args, episode.mjcf_xml)
     try:
         posture, commands = episode.nullspace_posture, list(episode.finger_commands)
         stepped = replayer.per_step(episode.states_before, actions, posture, commands)

@@ -5,7 +5,7 @@ moves the next delta's origin. An absolute target does not. Each row is
 ``[x, y, z, ax, ay, az, gripper]``: the hand's goal position and orientation (axis-angle) in the
 frame of robosuite's arm base site (``robot0_right_center``), exactly what robosuite's OSC_POSE
 takes with ``input_type="absolute"`` and ``input_ref_frame="base"``
-(`absolute_controller_configs`), and what robosuite's own ``delta_to_abs_action`` computes.
+(``CompositeController.absolute``), and what robosuite's own ``delta_to_abs_action`` computes.
 
 - ``osc``: the goal the delta action set (current hand pose plus the scaled delta, in the base
   frame): stepping it in robosuite's absolute OSC is the same control law as the delta.
@@ -15,53 +15,37 @@ takes with ``input_type="absolute"`` and ``input_ref_frame="base"``
 
 from __future__ import annotations
 
-import copy
+from collections.abc import Mapping
 from typing import Any
 
 import mujoco
 import numpy as np
 import numpy.typing as npt
+from pydantic import ValidationError
 from scipy.spatial.transform import Rotation
 
 from crowdteleop.dataset.files import DatasetError
+from crowdteleop.provenance.controllers import ArmController, OscPose, parse_arm_controller
 from crowdteleop.sim.types import KinematicModel
 
 
-def absolute_controller_configs(controller_configs: dict[str, Any]) -> dict[str, Any]:
-    """robosuite's OSC_POSE reading ``actions_abs`` (absolute, base frame), with the gains of
-    the recorded OSC (or robosuite's defaults for a joint controller's demos)."""
-    configs = copy.deepcopy(controller_configs)
-    arm = configs["body_parts"]["right"]
-    if arm.get("type") != "OSC_POSE":
-        arm = {
-            "type": "OSC_POSE",
-            "kp": 150,
-            "damping_ratio": 1,
-            "impedance_mode": "fixed",
-            "kp_limits": [0, 300],
-            "damping_ratio_limits": [0, 10],
-            "position_limits": None,
-            "orientation_limits": None,
-            "uncouple_pos_ori": True,
-            "interpolation": None,
-            "ramp_ratio": 0.2,
-            "gripper": arm.get("gripper", {"type": "GRIP"}),
-        }
-    configs["body_parts"]["right"] = arm | {
-        "input_type": "absolute",
-        "input_ref_frame": "base",
-        "input_max": 1,
-        "input_min": -1,
-        "output_max": [0.05, 0.05, 0.05, 0.5, 0.5, 0.5],
-        "output_min": [-0.05, -0.05, -0.05, -0.5, -0.5, -0.5],
-    }
-    return configs
+def arm_of(config: ArmController | Mapping[str, Any]) -> ArmController:
+    """The arm's controller, typed: as given, or parsed from robosuite's dict as a file holds it."""
+    if isinstance(config, Mapping):
+        try:
+            return parse_arm_controller(config)
+        except ValidationError as error:
+            kind = config.get("type")
+            raise DatasetError(f"no absolute targets for a {kind} controller: {error}") from error
+    return config
 
 
 class AbsoluteTargets:
     """Forward kinematics of one recorded model, for turning actions into absolute targets."""
 
-    def __init__(self, kinematics: KinematicModel, arm_config: dict[str, Any]) -> None:
+    def __init__(
+        self, kinematics: KinematicModel, arm_config: ArmController | Mapping[str, Any]
+    ) -> None:
         self._model = mujoco.MjModel.from_xml_string(kinematics.mjcf_xml)
         self._data = mujoco.MjData(self._model)
         model = self._model
@@ -77,12 +61,9 @@ class AbsoluteTargets:
         if not centre:
             raise DatasetError("the recorded model has no arm base site (robot0_right_center)")
         self._centre = model.site(centre[0]).id
-        self._type = arm_config.get("type")
-        if self._type not in ("OSC_POSE", "JOINT_POSITION"):
-            raise DatasetError(f"no absolute targets for a {self._type} controller")
-        self._scale = np.asarray(arm_config["output_max"], dtype=float) / np.asarray(
-            arm_config["input_max"], dtype=float
-        )
+        arm = arm_of(arm_config)
+        self._osc = isinstance(arm, OscPose)  # else the joint-velocity servo
+        self._scale = np.asarray(arm.action_scale, dtype=float)
 
     def _frames(self, qpos: npt.NDArray[np.float64]) -> tuple[Any, Any, Any, Any]:
         data = self._data
@@ -104,7 +85,7 @@ class AbsoluteTargets:
         for state, action in zip(states, actions, strict=True):
             qpos = state[1 : 1 + nq]
             hand, hand_rot, base, base_rot = self._frames(qpos)
-            if self._type == "OSC_POSE":
+            if self._osc:
                 delta = action[:6] * np.broadcast_to(self._scale, (6,))
                 goal = hand + base_rot @ delta[:3]
                 turn = Rotation.from_rotvec(delta[3:]).as_matrix()
@@ -123,9 +104,9 @@ class AbsoluteTargets:
     ) -> npt.NDArray[np.float64]:
         """The OSC_POSE delta action that sets the same goal as absolute ``target`` from
         ``state``: how a policy trained on ``actions_abs`` drives an ``osc`` simulation (the
-        same law as robosuite's absolute OSC while the goal is within one step's reach, 5 cm
-        and 0.5 rad; clipped beyond)."""
-        if self._type != "OSC_POSE":
+        same law as robosuite's absolute OSC while the goal is within one step's reach, the
+        OSC's output scales; clipped beyond)."""
+        if not self._osc:
             raise DatasetError("absolute targets turn into OSC_POSE deltas only")
         hand, hand_rot, base, base_rot = self._frames(state[1 : 1 + self._model.nq])
         goal = base + base_rot @ target[:3]

@@ -27,8 +27,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from crowdteleop.dataset.absolute import AbsoluteTargets, absolute_controller_configs
-from crowdteleop.dataset.env_meta import dataset_env_args, env_info
+from crowdteleop.dataset.absolute import AbsoluteTargets
+from crowdteleop.dataset.env_meta import dataset_env_args
 from crowdteleop.dataset.files import DATASET_FORMAT, DatasetError, DemoSummary
 from crowdteleop.dataset.observations import (
     LOW_DIM,
@@ -38,6 +38,7 @@ from crowdteleop.dataset.observations import (
     write_demo_pass,
 )
 from crowdteleop.dataset.summary import summarize
+from crowdteleop.provenance.controllers import ArmController
 from crowdteleop.recording.episode_file import DEMO, CorruptEpisodeError, Episode, read_episode
 from crowdteleop.recording.metadata import EpisodeMetadata
 from crowdteleop.recording.storage import fsync_directory
@@ -211,27 +212,26 @@ def _write(
     file.attrs.update(format=DATASET_FORMAT, schema_version=SCHEMA_VERSION)
     data = file.create_group("data")
     data.attrs.update(
-        env_args=json.dumps(env_args),
+        env_args=json.dumps(env_args.model_dump(mode="json")),
         total=sum(ep.steps for _, ep in chosen),
         date=time.strftime("%m-%d-%Y", now),
         time=time.strftime("%H:%M:%S", now),
         repository_version=versions.get("robosuite", "unknown"),
-        env=env_args.get("env_name", ""),
-        env_info=json.dumps(env_info(env_args)),
+        env=env_args.env_name,
+        env_info=json.dumps(env_args.env_info()),
         schema_version=SCHEMA_VERSION,
         platform_version=versions.get("crowdteleop", "unknown"),
         built_with=json.dumps(versions),
         built_at=time.time(),
         drift_tolerance=-1.0 if drift_tolerance is None else drift_tolerance,
     )
-    kwargs = env_args.get("env_kwargs", {})
-    if "controller_configs" in kwargs:
+    if env_args.controller is not None:
         data.attrs["actions_abs_controller_configs"] = json.dumps(
-            absolute_controller_configs(kwargs["controller_configs"])
+            env_args.controller.absolute().to_robosuite()
         )
     checker = ReplayChecker()
     try:
-        _write_demos(data, chosen, report, checker, work, obs, kwargs)
+        _write_demos(data, chosen, report, checker, work, obs, env_args.arm)
     finally:
         checker.close()
     _write_masks(file, report.demos, report.flagged, fastest, valid_fraction, seed)
@@ -244,11 +244,11 @@ def _write_demos(
     checker: Any,
     work: Work,
     obs: ObsSpec,
-    env_kwargs: dict[str, Any],
+    arm: ArmController | None,
 ) -> None:
+    """Each demo's group; with ``arm`` (the recorded arm controller), its ``actions_abs``."""
     from crowdteleop.dataset.replay import demo_of_episode
 
-    arm_config = env_kwargs.get("controller_configs", {}).get("body_parts", {}).get("right")
     for (path, episode), demo in zip(chosen, report.demos, strict=True):
         with h5py.File(path, "r") as source:
             for name in COPIED:
@@ -287,9 +287,9 @@ def _write_demos(
         replayable = demo_of_episode(episode)
         computed = observe_demo(checker, replayable, obs, lambda: work.add(1))
         absolute = None
-        if arm_config is not None:
+        if arm is not None:
             sim = checker.simulation(replayable)
-            absolute = AbsoluteTargets(sim.kinematics(), arm_config).of(
+            absolute = AbsoluteTargets(sim.kinematics(), arm).of(
                 replayable.states, replayable.actions
             )
         write_demo_pass(group, computed, absolute)

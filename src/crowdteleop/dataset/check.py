@@ -19,7 +19,6 @@ pass, fail or skip, with the figure behind the verdict:
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +28,8 @@ import h5py
 import numpy as np
 
 from crowdteleop.dataset.files import open_dataset
+from crowdteleop.provenance.controllers import CompositeController
+from crowdteleop.provenance.env_args import EnvArgs
 
 Verdict = Literal["pass", "fail", "skip"]
 STOCK_LOW_DIM = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos", "object")
@@ -86,18 +87,19 @@ def _env_info_and_states(path: Path, names: list[str]) -> CheckResult:
     )
 
 
-def _env_args(path: Path) -> dict[str, Any]:
+def _env_args(path: Path) -> tuple[EnvArgs, CompositeController]:
+    """The dataset's ``env_args`` and the controller they name."""
     with open_dataset(path) as file:
-        env_args: dict[str, Any] = json.loads(file["data"].attrs["env_args"])
-    if "controller_configs" not in env_args.get("env_kwargs", {}):
+        env_args = EnvArgs.model_validate_json(file["data"].attrs["env_args"])
+    if env_args.controller is None:
         raise ValueError("env_args names no controller_configs: robosuite would use its default")
-    return env_args
+    return env_args, env_args.controller
 
 
 def _actions(path: Path, names: list[str]) -> CheckResult:
     from crowdteleop.dataset.replay import ReplayChecker, load_demo
 
-    env_args = _env_args(path)
+    env_args, controller = _env_args(path)
     medians, maxima, after20, after40 = [], [], [], []
     with ReplayChecker() as checker:
         for name in names:
@@ -107,7 +109,7 @@ def _actions(path: Path, names: list[str]) -> CheckResult:
             after20.append(drift.open_loop_at_m.get(20, np.nan))
             after40.append(drift.open_loop_at_m.get(40, np.nan))
     ok = max(medians) < PER_STEP_MEDIAN_M and max(maxima) < PER_STEP_MAX_M
-    arm = env_args["env_kwargs"]["controller_configs"]["body_parts"]["right"]["type"]
+    arm = controller.arm.type
     return CheckResult(
         "actions (plain robosuite)",
         "pass" if ok else "fail",
@@ -121,19 +123,19 @@ def _actions(path: Path, names: list[str]) -> CheckResult:
 def _absolute_actions(path: Path, names: list[str]) -> CheckResult:
     from crowdteleop.dataset.robosuite_replay import RobosuiteReplayer
 
-    env_args = _env_args(path)
+    env_args, _ = _env_args(path)
     with open_dataset(path) as file:
         configs = file["data"].attrs.get("actions_abs_controller_configs")
         if configs is None or "actions_abs" not in file["data"][names[0]]:
             return CheckResult("actions_abs", "skip", "no actions_abs in this dataset")
-        kwargs = env_args["env_kwargs"] | {"controller_configs": json.loads(configs)}
+        absolute_env = env_args.with_controller(CompositeController.model_validate_json(configs))
         errors20, errors40 = [], []
         for name in names:
             group = file["data"][name]
             states, absolute = group["states"][()], group["actions_abs"][()]
             start = float(group["controller_states"][0][0]) if "controller_states" in group else 0
             model_file = str(group.attrs["model_file"])
-            replayer = RobosuiteReplayer(env_args["env_name"], kwargs, model_file)
+            replayer = RobosuiteReplayer(absolute_env, model_file)
             try:
                 hands = replayer.open_loop(states[0], absolute, None, start).hands
             finally:
@@ -161,7 +163,7 @@ def _scene_from_env_args(path: Path, names: list[str]) -> CheckResult:
 
     from crowdteleop.dataset.robosuite_replay import REPLAY_KWARGS
 
-    env_args = _env_args(path)
+    env_args, _ = _env_args(path)
     with open_dataset(path) as file:
         recorded = str(file["data"][names[0]].attrs["model_file"])
         states = file["data"][names[0]]["states"][()][::10]
@@ -170,7 +172,7 @@ def _scene_from_env_args(path: Path, names: list[str]) -> CheckResult:
         found = ET.fromstring(xml).findall("./contact/exclude")
         return {(str(e.get("body1")), str(e.get("body2"))) for e in found}
 
-    plain = robosuite.make(env_args["env_name"], **(env_args["env_kwargs"] | REPLAY_KWARGS))
+    plain = robosuite.make(env_args.env_name, **env_args.robosuite_kwargs(**REPLAY_KWARGS))
     try:
         missing = excludes(recorded) - excludes(plain.sim.model.get_xml())
         touching = _touching_share(plain.sim, missing, states)

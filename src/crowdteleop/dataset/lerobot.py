@@ -47,6 +47,7 @@ from crowdteleop.dataset.video import (
     encode_clip,
     video_info,
 )
+from crowdteleop.provenance.env_args import EnvArgs
 from crowdteleop.recording.metadata import EpisodeMetadata
 from crowdteleop.tasks import get_task
 
@@ -123,7 +124,7 @@ def export_lerobot(
     if abs(hz - round(hz)) > 1e-9:
         raise DatasetError(f"LeRobot needs whole frames per second; {dataset} runs at {hz} Hz")
     with open_dataset(dataset) as file:
-        robots = json.loads(file["data"].attrs["env_args"]).get("env_kwargs", {}).get("robots")
+        robots = EnvArgs.model_validate_json(file["data"].attrs["env_args"]).robots
     tmp = output.with_name(f".{output.name}.{os.getpid()}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     sizes = {"data": data_files_size_in_mb, "video": video_files_size_in_mb}

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import functools
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -20,10 +20,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
+from pydantic import ValidationError
 
 from crowdteleop.dataset.files import DatasetError, open_dataset
+from crowdteleop.provenance.env_args import EnvArgs
 from crowdteleop.recording.episode_file import CorruptEpisodeError, Episode, read_episode
-from crowdteleop.recording.metadata import EpisodeMetadata
+from crowdteleop.recording.metadata import EpisodeMetadata, robosuite_version
 from crowdteleop.sim.mjcf import same_model
 
 if TYPE_CHECKING:  # the interface's types load MuJoCo; reading a dataset should not
@@ -39,7 +41,7 @@ class Demo:
     actions: npt.NDArray[np.float64]
     model_xml: str
     metadata: dict[str, Any]
-    env_args: dict[str, Any] | None = None  # robomimic's, as the file recorded them
+    env_args: EnvArgs | None = None  # robomimic's, as the file recorded them
 
     @functools.cached_property
     def info(self) -> EpisodeMetadata:
@@ -98,7 +100,7 @@ def load_demo(path: Path, demo: str | None = None) -> Demo:
             actions=group["actions"][()],
             model_xml=str(group.attrs["model_file"]),
             metadata=json.loads(group.attrs["metadata"]),
-            env_args=json.loads(file["data"].attrs["env_args"]),
+            env_args=_env_args(file["data"].attrs["env_args"], f"{path}'s data"),
         )
 
 
@@ -111,16 +113,28 @@ def demo_of_episode(episode: Episode) -> Demo:
         episode.actions,
         episode.model_xml,
         episode.metadata,
-        episode.env_args,
+        None if episode.env_args is None else _env_args(episode.env_args, episode.episode_id),
     )
 
 
-def recorded_env_args(demo: Demo) -> dict[str, Any]:
+def _env_args(recorded: str | Mapping[str, Any] | EnvArgs, where: str) -> EnvArgs:
+    """A file's ``env_args`` typed: from its JSON, or the dict robomimic (or an episode file)
+    reads from it."""
+    try:
+        if isinstance(recorded, EnvArgs):
+            return recorded
+        if isinstance(recorded, Mapping):
+            return EnvArgs.model_validate(recorded)
+        return EnvArgs.model_validate_json(recorded)
+    except ValidationError as error:
+        raise DatasetError(f"{where}: env_args are not robomimic's: {error}") from error
+
+
+def recorded_env_args(demo: Demo) -> EnvArgs:
     """robomimic's ``env_args`` for a demo, derived from its recorded ``sim_config``."""
     from crowdteleop.sim import SimConfig
-    from crowdteleop.teleop.episode import env_args
 
-    return env_args(SimConfig(**recorded_sim_config(demo))).model_dump(mode="json")
+    return EnvArgs.of(SimConfig(**recorded_sim_config(demo)), robosuite_version())
 
 
 def recorded_sim_config(demo: Demo) -> dict[str, Any]:
@@ -205,16 +219,18 @@ class ReplayChecker:
             max_qpos_error=max(qpos_errors, default=0.0),
         )
 
-    def robosuite_drift(self, demo: Demo, env_args: dict[str, Any] | None = None) -> RobosuiteDrift:
+    def robosuite_drift(
+        self, demo: Demo, env_args: EnvArgs | Mapping[str, Any] | None = None
+    ) -> RobosuiteDrift:
         """Action replay in plain robosuite rebuilt from ``env_args`` (default: the demo's
         file's), per step from each recorded state and open loop from the first, against our
         hand. Files recorded before ``env_args`` named the controller get it from their
         ``sim_config``."""
         from crowdteleop.dataset.robosuite_replay import RobosuiteReplayer
 
-        env_args = env_args or demo.env_args or {}
-        if "controller_configs" not in env_args.get("env_kwargs", {}):
-            env_args = recorded_env_args(demo)
+        recorded = demo.env_args if env_args is None else _env_args(env_args, demo.name)
+        if recorded is None or recorded.controller is None:
+            recorded = recorded_env_args(demo)
 
         sim = self.start(demo)
         initial_joints = sim.robot_state().joint_positions.copy()
@@ -227,9 +243,7 @@ class ReplayChecker:
             sim.step(action)
             controller = sim.controller_state()
             ours.append(sim.robot_state().end_effector.position.copy())
-        replayer = RobosuiteReplayer(
-            env_args["env_name"], env_args.get("env_kwargs", {}), demo.model_xml
-        )
+        replayer = RobosuiteReplayer(recorded, demo.model_xml)
         try:
             per_step = replayer.per_step(list(demo.states), demo.actions, initial_joints, commands)
             open_loop = replayer.open_loop(

@@ -22,10 +22,10 @@ from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.scripted import ScriptedOperator, run_episode
 from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
 from crowdteleop.errors import ConfigError
+from crowdteleop.provenance.env_args import EnvArgs
+from crowdteleop.recording.metadata import robosuite_version
 from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.sim.robosuite_backend import RobosuiteSimulation
-from crowdteleop.sim.robosuite_backend.controllers import robosuite_env_kwargs
-from crowdteleop.tasks import get_task
 from crowdteleop.vocab import ControllerName
 
 # What replaying needs and robosuite.make would otherwise default differently.
@@ -42,7 +42,7 @@ class RecordedEpisode:
     """What replaying an episode in robosuite needs, and where our hand and fingers went."""
 
     task: str
-    env_kwargs: dict[str, Any]
+    env_args: EnvArgs
     mjcf_xml: str
     nullspace_posture: npt.NDArray[np.float64]
     states_before: list[npt.NDArray[np.float64]]
@@ -83,7 +83,7 @@ def record_scripted_episode_in_memory(
         result = run_episode(teleop, operator, seed, time_limit_s=time_limit_s)
         return RecordedEpisode(
             task,
-            robosuite_env_kwargs(config),
+            EnvArgs.of(config, robosuite_version()),
             sim.mjcf_xml(),
             sim.nullspace_posture,
             before,
@@ -107,10 +107,11 @@ class Trajectory:
 
 
 class RobosuiteReplayer:
-    """A plain robosuite environment rebuilt from ``env_name`` / ``env_kwargs`` for one model."""
+    """A plain robosuite environment rebuilt from ``env_args`` for one model."""
 
-    def __init__(self, env_name: str, env_kwargs: dict[str, Any], mjcf_xml: str) -> None:
-        self._env = robosuite.make(env_name, **(env_kwargs | REPLAY_KWARGS | {"hard_reset": False}))
+    def __init__(self, env_args: EnvArgs, mjcf_xml: str) -> None:
+        kwargs = env_args.robosuite_kwargs(**REPLAY_KWARGS, hard_reset=False)
+        self._env = robosuite.make(env_args.env_name, **kwargs)
         self._env.reset_from_xml_string(mjcf_xml)
         robot = self._env.robots[0]
         self._arm = robot.composite_controller.part_controllers[robot.arms[0]]
@@ -126,7 +127,7 @@ class RobosuiteReplayer:
     def for_task(cls, task: str, controller: ControllerName, mjcf_xml: str) -> RobosuiteReplayer:
         control = ControlConfig(controller=controller)
         config = SimConfig(task=task, action_mode=control.action_mode)
-        return cls(get_task(task).env_name, robosuite_env_kwargs(config), mjcf_xml)
+        return cls(EnvArgs.of(config, robosuite_version()), mjcf_xml)
 
     def close(self) -> None:
         self._env.close()

@@ -2,8 +2,8 @@
 
 The platform's test users: each episode goes through the full control path (scripted operator
 -> Teleoperator -> Simulation) and every control step through ``EpisodeRecorder`` with the
-metadata ``crowdteleop.teleop.session`` writes, so tests and benchmarks exercise the very files
-workers produce.
+metadata the teleop session writes (``recording.metadata.episode_metadata``), so tests and
+benchmarks exercise the very files workers produce.
 """
 
 from __future__ import annotations
@@ -21,11 +21,10 @@ from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
 from crowdteleop.recording.episode_file import StepRecord
-from crowdteleop.recording.metadata import EpisodeMetadata
+from crowdteleop.recording.metadata import EpisodeMetadata, episode_metadata
 from crowdteleop.recording.versions import runtime_versions
 from crowdteleop.recording.wal import EpisodeRecorder
 from crowdteleop.sim.interface import Simulation
-from crowdteleop.teleop.episode import episode_metadata
 from crowdteleop.vocab import ControllerName, Outcome
 
 

@@ -1,17 +1,21 @@
 """What every recorded episode says about how it was made: one model for its writers (the
-teleop server, the scripted rig) and its readers (the dataset tools).
+teleop server, the scripted rig) and its readers (the dataset tools), and `episode_metadata`,
+the one way both writers fill it in.
 
 Stored as JSON in the episode file (``crowdteleop.recording.episode_file``); campaigns may add
 keys of their own (``campaign``, ``network_condition``, ``interface``...), kept as extras.
-Fields have defaults so files recorded before a field existed still read.
+Fields have defaults so files recorded before a field existed still read. ``env_args`` and the
+controller it names are typed by ``crowdteleop.provenance``.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
+from crowdteleop.provenance.env_args import EnvArgs, SimSettings
+from crowdteleop.recording.versions import runtime_versions
 from crowdteleop.vocab import ActionMode, ControllerName
 
 DEFAULT_CONTROL_HZ = 20.0
@@ -33,16 +37,6 @@ class RegionChoice(BaseModel):
         max_length=16,
         description="the worker's measured round trip to each region it could reach",
     )
-
-
-class EnvArgs(BaseModel):
-    """robomimic's ``env_args``: what rebuilds the scene in plain robosuite (type 1)."""
-
-    model_config = ConfigDict(extra="allow")
-
-    env_name: str
-    type: int = 1
-    env_kwargs: dict[str, Any] = Field(default_factory=dict)
 
 
 class EpisodeMetadata(BaseModel):
@@ -73,3 +67,54 @@ class EpisodeMetadata(BaseModel):
     def to_record(self) -> dict[str, Any]:
         """The JSON-ready dict the recorder stores (unset optional fields left out)."""
         return self.model_dump(mode="json", exclude_none=True)
+
+
+class RecordedSim(SimSettings, Protocol):
+    """A simulation's config as an episode records it (``crowdteleop.sim.config.SimConfig``:
+    recording sits below ``sim`` and reads it through this protocol)."""
+
+    def model_dump(self, *, mode: str) -> dict[str, Any]: ...
+
+
+class RecordedControl(Protocol):
+    """The control config as an episode records it
+    (``crowdteleop.control.config.ControlConfig``)."""
+
+    @property
+    def controller(self) -> ControllerName: ...
+    def model_dump(self, *, mode: str) -> dict[str, Any]: ...
+
+
+def episode_metadata(
+    sim: RecordedSim,
+    control: RecordedControl,
+    camera: str,
+    model_xml: str,
+    reset_seed: int,
+    session_id: str | None = None,
+    worker_id: str | None = None,
+    region: RegionChoice | None = None,
+) -> EpisodeMetadata:
+    """How an episode on this simulation is made: written by the teleop session and the
+    scripted rig alike, so tests and benchmarks record the very files workers produce."""
+    return EpisodeMetadata(
+        session_id=session_id,
+        worker_id=worker_id,
+        region=region,
+        task=sim.task,
+        robot=sim.robot,
+        controller=control.controller,
+        action_mode=sim.action_mode,
+        control_hz=sim.control_hz,
+        camera=camera,
+        sim_config=sim.model_dump(mode="json"),
+        control_config=control.model_dump(mode="json"),
+        model_xml=model_xml,
+        reset_seed=reset_seed,
+        env_args=EnvArgs.of(sim, robosuite_version()),
+    )
+
+
+def robosuite_version() -> str:
+    """The robosuite this process runs (robomimic's ``env_version``)."""
+    return runtime_versions().get("robosuite", "unknown")

@@ -12,16 +12,13 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.teleoperator import TeleopStep
 from crowdteleop.recording.episode_file import CommandRecord, StepRecord
-from crowdteleop.recording.metadata import EnvArgs, EpisodeMetadata, RegionChoice
+from crowdteleop.recording.metadata import EpisodeMetadata
 from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.recording.stores import SavedWhen
 from crowdteleop.recording.versions import runtime_versions
 from crowdteleop.recording.wal import EpisodeRecorder
-from crowdteleop.sim.config import SimConfig
-from crowdteleop.tasks import get_task
 from crowdteleop.vocab import DeviceKind, Outcome
 
 log = logging.getLogger(__name__)
@@ -126,51 +123,6 @@ class EpisodeTracker:
         self._recorder = None
         self.state = "stopped" if stop else "ready"
         return finished
-
-
-def episode_metadata(
-    sim: SimConfig,
-    control: ControlConfig,
-    camera: str,
-    model_xml: str,
-    reset_seed: int,
-    session_id: str | None = None,
-    worker_id: str | None = None,
-    region: RegionChoice | None = None,
-) -> EpisodeMetadata:
-    """How an episode on this simulation is made: written by the teleop session and the
-    scripted rig alike, so tests and benchmarks record the very files workers produce."""
-    return EpisodeMetadata(
-        session_id=session_id,
-        worker_id=worker_id,
-        region=region,
-        task=sim.task,
-        robot=sim.robot,
-        controller=control.controller,
-        action_mode=sim.action_mode,
-        control_hz=sim.control_hz,
-        camera=camera,
-        sim_config=sim.model_dump(mode="json"),
-        control_config=control.model_dump(mode="json"),
-        model_xml=model_xml,
-        reset_seed=reset_seed,
-        env_args=env_args(sim),
-    )
-
-
-def env_args(sim: SimConfig) -> EnvArgs:
-    """robomimic's ``env_args``: plain robosuite rebuilds scene, robot and controller from it
-    (the scene of a pure-MuJoCo task names no robosuite environment robosuite could make)."""
-    task = get_task(sim.task)
-    if task.backend != "robosuite":
-        return EnvArgs(env_name=task.env_name, env_kwargs={"robots": [sim.robot]})
-    from crowdteleop.sim.robosuite_backend.controllers import robosuite_env_kwargs
-
-    return EnvArgs(
-        env_name=task.env_name,
-        env_version=runtime_versions().get("robosuite", "unknown"),
-        env_kwargs=robosuite_env_kwargs(sim),
-    )
 
 
 def step_record(

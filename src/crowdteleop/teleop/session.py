@@ -22,6 +22,7 @@ from av import VideoFrame
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.teleoperator import Teleoperator
 from crowdteleop.recording.episode_file import CommandRecord, RecordingError
+from crowdteleop.recording.metadata import episode_metadata
 from crowdteleop.recording.storage import EpisodeStorage, disk_is_full
 from crowdteleop.sim.factory import make_simulation
 from crowdteleop.sim.interface import Simulation
@@ -29,13 +30,7 @@ from crowdteleop.sim.types import ContactEvent, Pose, TaskProgress
 from crowdteleop.tasks import get_task
 from crowdteleop.teleop.commands import CommandBoard
 from crowdteleop.teleop.config import TeleopConfig
-from crowdteleop.teleop.episode import (
-    EpisodeTracker,
-    FinishedEpisode,
-    episode_metadata,
-    step_record,
-    store_episode,
-)
+from crowdteleop.teleop.episode import EpisodeTracker, FinishedEpisode, step_record, store_episode
 from crowdteleop.teleop.practice import PracticeRound
 from crowdteleop.teleop.video import YuvConverter
 from crowdteleop.vocab import Outcome

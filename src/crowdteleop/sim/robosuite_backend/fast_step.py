@@ -20,6 +20,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
+from crowdteleop.provenance.controllers import ArmController, OscPose
 from crowdteleop.sim.robosuite_backend.fast_control import FoldedArm
 
 # A scene whose every joint moves slower than REST_SPEED and, under the step's command,
@@ -31,13 +32,17 @@ REST_ACCEL = 1e-2  # rad/s^2 or m/s^2
 
 @dataclass(frozen=True)
 class Gains:
-    """The arm controller's gains (from `controllers.arm_controller_config`)."""
+    """The arm controller's gains, as the fast path applies them."""
 
     kp: float
     kd: float
-    output_max: npt.NDArray[
-        np.float64
-    ]  # action unit -> metres / radians (osc) or radians (joint servo)
+    output_max: npt.NDArray[np.float64]  # per action entry: metres / radians (osc), radians (servo)
+
+    @classmethod
+    def of(cls, controller: ArmController, arm_actions: int) -> Gains:
+        """robosuite's: its stiffness, critical damping times the ratio, and output scale."""
+        scale = np.asarray(controller.action_scale, dtype=float)
+        return cls(float(controller.kp), controller.kd, np.broadcast_to(scale, arm_actions).copy())
 
 
 def finger_direction(gripper: Any) -> npt.NDArray[np.float64]:
@@ -59,8 +64,7 @@ class FastStepper:
         self,
         model: mujoco.MjModel,
         arm: FoldedArm,
-        mode: str,
-        gains: Gains,
+        controller: ArmController,
         base_body: int,
         gripper_actuators: npt.NDArray[np.intp],
         gripper_closed: npt.NDArray[np.float64],
@@ -69,8 +73,8 @@ class FastStepper:
     ) -> None:
         self._model = model
         self.arm = arm
-        self.mode = mode
-        self.gains = gains
+        self._osc_pose = isinstance(controller, OscPose)  # else the joint-velocity servo
+        self.gains = Gains.of(controller, 6 if self._osc_pose else len(arm.layout.qpos))
         self._base_body = base_body
         self._gripper_actuators = gripper_actuators
         low, high = model.actuator_ctrlrange[gripper_actuators].T
@@ -107,7 +111,7 @@ class FastStepper:
         if key == self._asleep_at:
             self._sleep(data)
             return
-        if self.mode == "osc-pose":
+        if self._osc_pose:
             self._osc(data, arm_action)
         else:
             goal = data.qpos[self.arm.layout.qpos] + arm_action * self.gains.output_max

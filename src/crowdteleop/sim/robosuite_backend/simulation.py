@@ -14,17 +14,14 @@ import numpy as np
 import numpy.typing as npt
 
 from crowdteleop.errors import InvalidStateError, UnknownRobotError
+from crowdteleop.provenance.controllers import CompositeController, arm_controller
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, touching
 from crowdteleop.sim.fastrender import FastSceneRenderer
 from crowdteleop.sim.mujoco_data import flat_state, pose_from_matrix
 from crowdteleop.sim.robosuite_backend import fast_model, model_fixes, tasks
-from crowdteleop.sim.robosuite_backend.controllers import (
-    arm_controller_config,
-    composite_controller_config,
-)
 from crowdteleop.sim.robosuite_backend.fast_control import ArmLayout, FoldedArm
-from crowdteleop.sim.robosuite_backend.fast_step import FastStepper, Gains, finger_direction
+from crowdteleop.sim.robosuite_backend.fast_step import FastStepper, finger_direction
 from crowdteleop.sim.types import (
     ActionSpec,
     ContactEvent,
@@ -59,10 +56,14 @@ class RobosuiteSimulation:
         self.config = config
         self.task: TaskSpec = get_task(config.task)
         control_freq = config.control_hz
+        # The arm's controller, as robosuite builds it and as the fast path applies it.
+        self._controller = arm_controller(
+            config.action_mode, 1.0 / control_freq, config.max_joint_speed
+        )
         self._env = robosuite.make(
             self.task.env_name,
             robots=config.robot,
-            controller_configs=composite_controller_config(config, 1.0 / control_freq),
+            controller_configs=CompositeController.of(self._controller).to_robosuite(),
             has_renderer=False,
             has_offscreen_renderer=False,
             use_camera_obs=False,
@@ -255,18 +256,10 @@ class RobosuiteSimulation:
             motors=np.array(robot._ref_arm_joint_actuator_indexes),
             ee_site=self._ee_site_id,
         )
-        part = arm_controller_config(self.config, self.control_dt)
-        scale = np.asarray(part["output_max"], dtype=float) / np.asarray(part["input_max"])
-        gains = Gains(
-            kp=float(part["kp"]),
-            kd=2.0 * np.sqrt(part["kp"]) * part["damping_ratio"],
-            output_max=np.broadcast_to(scale, (self.action_spec.size - 1,)).copy(),
-        )
         return FastStepper(
             self._model,
             FoldedArm(self._model, layout),
-            self.config.action_mode,
-            gains,
+            self._controller,
             self._base_body_id,
             np.array(robot._ref_joint_gripper_actuator_indexes[arm]),
             finger_direction(robot.gripper[arm]),
