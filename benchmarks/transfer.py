@@ -30,7 +30,8 @@ from crowdteleop.learn.actions import ActionKey
 from crowdteleop.learn.bc import EpochLog, load_checkpoint, train_bc
 from crowdteleop.learn.cli import results_table
 from crowdteleop.learn.config import BCConfig, Head
-from crowdteleop.learn.rollout import EpisodeOutcome, EvalReport, SimName, evaluate
+from crowdteleop.learn.envs import SIM_NAMES, robosuite_scene
+from crowdteleop.learn.evaluation import Episode, EvalReport, evaluate_checkpoint
 from crowdteleop.vocab import ControllerName
 
 app = typer.Typer(add_completion=False)
@@ -77,7 +78,7 @@ def build(episodes: Path, output: Path) -> float:
     return time.perf_counter() - started
 
 
-def phases(outcome: EpisodeOutcome, env_name: str) -> dict[str, Any]:
+def phases(outcome: Episode, env_name: str) -> dict[str, Any]:
     """How far a rollout got, from its trace of hand, fingers, object and actions."""
     assert outcome.trace is not None
     hand = np.array(outcome.trace["robot0_eef_pos"])
@@ -205,15 +206,13 @@ def main(
     checkpoint = load_checkpoint(model)
     result.setdefault("train_seconds", checkpoint.train_seconds)
     reports, details, traces = [], {}, {}
-    sims: tuple[SimName, ...] = ("ours", "robosuite")
-    for sim in sims:
+    seeds = range(eval_seed, eval_seed + episodes)
+    for sim in SIM_NAMES:
         started = time.perf_counter()
-        report = evaluate(
-            checkpoint, sim, episodes, seed=eval_seed, rnn_horizon=rnn_horizon, trace=True
-        )
+        report = evaluate_checkpoint(checkpoint, sim, seeds, rnn_horizon=rnn_horizon, trace=True)
         console.print(f"{sim}: {report.success_rate:.0%} in {time.perf_counter() - started:.0f} s")
         reports.append(report)
-        env_name = str(checkpoint.dataset["env_args"].get("env_name"))
+        env_name = robosuite_scene(checkpoint.dataset["env_args"]).env_name
         details[sim] = [phases(e, env_name) for e in report.episodes]
         for e in report.episodes:
             for key, values in (e.trace or {}).items():

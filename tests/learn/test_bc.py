@@ -15,7 +15,8 @@ from crowdteleop.cli import app
 from crowdteleop.learn.bc import Policy, load_checkpoint, train_bc
 from crowdteleop.learn.config import STOCK_OBS_KEYS, BCConfig
 from crowdteleop.learn.data import LearnDataError, SequenceSampler, load_learn_data
-from crowdteleop.learn.rollout import evaluate, plain_env_kwargs
+from crowdteleop.learn.envs import robosuite_scene
+from crowdteleop.learn.evaluation import evaluate_checkpoint
 
 runner = CliRunner()
 SMALL = {"hidden_dim": 64, "batch_size": 32, "steps_per_epoch": 40, "learning_rate": 1e-3}
@@ -103,7 +104,7 @@ def test_the_lstm_state_restarts_every_horizon_as_robomimic_does(deterministic, 
 @pytest.mark.parametrize("sim", ["ours", "robosuite"])
 def test_a_rollout_runs_in_each_simulation(trained, sim):
     checkpoint = load_checkpoint(trained.checkpoint)
-    report = evaluate(checkpoint, sim, episodes=1, horizon=5, trace=True)
+    report = evaluate_checkpoint(checkpoint, sim, seeds=[0], horizon=5, trace=True)
     (episode,) = report.episodes
     assert episode.steps == 5 and not episode.success  # 5 steps cannot lift the cube
     assert np.array(episode.trace["action"]).shape == (5, 7)
@@ -114,20 +115,23 @@ def test_a_rollout_runs_in_each_simulation(trained, sim):
 def test_episode_k_starts_from_the_same_scene_every_time_in_each_simulation(trained):
     """Seeded episodes: a rerun compares like with like. (The two simulations' scenes differ:
     plain robosuite's hard reset redraws the cube's size from env.rng before placing it.)"""
-    from crowdteleop.learn.rollout import open_env
+    from crowdteleop.learn.evaluation import open_env
 
     checkpoint = load_checkpoint(trained.checkpoint)
     for sim in ("ours", "robosuite"):
         with open_env(checkpoint, sim) as env:
-            starts = [env.reset(seed)["object"][:3] for seed in (0, 1, 0)]
+            starts = []
+            for seed in (0, 1, 0):
+                env.reset(seed=seed)
+                starts.append(env.named_observations()["object"][:3])
         np.testing.assert_array_equal(starts[0], starts[2])
         assert not np.allclose(starts[0], starts[1])
 
 
 def test_plain_robosuite_gets_headless_defaults_only_where_env_args_is_silent():
-    kwargs = plain_env_kwargs(
+    kwargs = robosuite_scene(
         {"env_name": "Lift", "env_kwargs": {"robots": ["Sawyer"], "ignore_done": False}}
-    )
+    ).env_kwargs
     assert kwargs["ignore_done"] is False and kwargs["has_renderer"] is False
     assert kwargs["robots"] == ["Sawyer"]
 
@@ -209,16 +213,16 @@ def test_an_absolute_policy_learns_the_targets_in_their_continuous_form(absolute
 
 @pytest.mark.parametrize("sim", ["ours", "robosuite"])
 def test_an_absolute_policy_rolls_out_in_each_simulation(absolute, sim):
-    report = evaluate(absolute, sim, episodes=1, horizon=8, trace=True)
+    report = evaluate_checkpoint(absolute, sim, seeds=[0], horizon=8, trace=True)
     (episode,) = report.episodes
     assert np.array(episode.trace["action"]).shape == (8, 7)  # the recorded actions_abs layout
 
 
 def test_plain_robosuite_reads_absolute_targets_with_its_absolute_osc(absolute):
-    from crowdteleop.learn.rollout import open_env
+    from crowdteleop.learn.evaluation import open_env
 
     with open_env(absolute, "robosuite") as env:
-        arm = env.env.robots[0].part_controllers["right"]
+        arm = env.backend.env.robots[0].part_controllers["right"]
         assert arm.input_type == "absolute" and arm.input_ref_frame == "base"
 
 
@@ -227,7 +231,7 @@ def test_the_open_loop_targets_of_a_demo_retrace_it_in_our_simulation(absolute, 
     demo's own hand went: what makes an absolute policy's targets mean the same here."""
     import h5py
 
-    from crowdteleop.learn.rollout import open_env
+    from crowdteleop.learn.evaluation import open_env
 
     with h5py.File(lift_dataset) as file:
         group = file["data/demo_1"]
@@ -235,16 +239,20 @@ def test_the_open_loop_targets_of_a_demo_retrace_it_in_our_simulation(absolute, 
         seed = json.loads(group.attrs["metadata"])["reset_seed"]
         start = group["states"][0]
     with open_env(absolute, "ours") as env:
-        env.reset(seed)
+        env.reset(seed=seed)
         env.sim.set_state(start)
-        reached = np.array([env.step(target)[0]["robot0_eef_pos"] for target in targets])
+        reached = []
+        for target in targets:
+            env.step(target)
+            reached.append(env.named_observations()["robot0_eef_pos"])
+        reached = np.array(reached)
     assert np.max(np.linalg.norm(reached - hands, axis=1)) < 0.01
 
 
 def test_an_absolute_policy_of_ik_velocity_demos_is_refused_in_our_simulation(absolute):
     from dataclasses import replace
 
-    from crowdteleop.learn.rollout import open_env
+    from crowdteleop.learn.evaluation import open_env
 
     dataset = json.loads(json.dumps(absolute.dataset))
     dataset["env_args"]["env_kwargs"]["controller_configs"]["body_parts"]["right"]["type"] = (
@@ -264,7 +272,7 @@ def test_both_simulations_bring_the_hand_to_the_same_absolute_target(absolute, l
     import h5py
     from scipy.spatial.transform import Rotation
 
-    from crowdteleop.learn.rollout import open_env
+    from crowdteleop.learn.evaluation import open_env
 
     with h5py.File(lift_dataset) as file:
         target = file["data/demo_1/actions_abs"][0]  # near the start: Sawyer reaches it in both
@@ -272,9 +280,10 @@ def test_both_simulations_bring_the_hand_to_the_same_absolute_target(absolute, l
     reached = {}
     for sim in ("ours", "robosuite"):
         with open_env(absolute, sim) as env:
-            env.reset(0)
+            env.reset(seed=0)
             for _ in range(15):
-                obs, _ = env.step(target)
+                env.step(target)
+            obs = env.named_observations()
             reached[sim] = obs["robot0_eef_pos"], Rotation.from_quat(obs["robot0_eef_quat"])
     (pos_a, rot_a), (pos_b, rot_b) = reached["ours"], reached["robosuite"]
     assert np.linalg.norm(pos_a - pos_b) < 0.01

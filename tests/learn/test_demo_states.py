@@ -10,7 +10,7 @@ from scipy import stats
 
 from crowdteleop.learn.data import LearnDataError
 from crowdteleop.learn.demo_states import DemoStates, DemoTrajectory, StartState, load_demo_states
-from crowdteleop.learn.gym_env import EnvSettings, SimEnv
+from crowdteleop.learn.envs import EnvSettings, make_env
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +36,7 @@ def test_demos_are_drawn_uniformly_whatever_their_length():
 
 
 def test_resets_start_in_a_demo_with_probability_p(demos):
-    env = SimEnv(EnvSettings(sim_config=demos.sim_config, demo_reset_p=0.7), demos)
+    env = make_env(EnvSettings(sim_config=demos.sim_config, demo_reset_p=0.7), demos)
     try:
         env.reset(seed=0)
         starts = [env.reset()[1]["start"] for _ in range(600)]
@@ -48,7 +48,7 @@ def test_resets_start_in_a_demo_with_probability_p(demos):
 
 def test_p_zero_never_and_p_one_always_starts_in_a_demo(demos):
     for p, expected in ((0.0, "normal"), (1.0, "demo")):
-        env = SimEnv(EnvSettings(sim_config=demos.sim_config, demo_reset_p=p), demos)
+        env = make_env(EnvSettings(sim_config=demos.sim_config, demo_reset_p=p), demos)
         try:
             env.reset(seed=0)
             assert {env.reset()[1]["start"] for _ in range(30)} == {expected}
@@ -57,7 +57,7 @@ def test_p_zero_never_and_p_one_always_starts_in_a_demo(demos):
 
 
 def test_a_restored_state_is_exact_and_replays_the_next_step_exactly(demos):
-    env = SimEnv(EnvSettings(sim_config=demos.sim_config), demos)
+    env = make_env(EnvSettings(sim_config=demos.sim_config), demos)
     try:
         for index, demo in enumerate(demos.demos):
             for step in (0, len(demo) // 2, len(demo) - 2):
@@ -101,7 +101,7 @@ def test_demos_recorded_under_another_install_still_restore(demos):
         ]
     )
     assert moved.demos[0].model_xml != demos.demos[0].model_xml
-    env = SimEnv(EnvSettings(sim_config=moved.sim_config), moved)
+    env = make_env(EnvSettings(sim_config=moved.sim_config), moved)
     try:
         env.reset(options={"start": StartState(0, 5)})
         np.testing.assert_array_equal(env.sim.get_state(), moved.demos[0].states[5])
@@ -111,4 +111,4 @@ def test_demos_recorded_under_another_install_still_restore(demos):
         [dataclasses.replace(demos.demos[0], model_xml=demos.demos[0].model_xml + "<!-- -->")]
     )
     with pytest.raises(ValueError, match="no longer builds the model"):
-        SimEnv(EnvSettings(sim_config=other.sim_config), other)
+        make_env(EnvSettings(sim_config=other.sim_config), other)

@@ -14,7 +14,7 @@ from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
 from typer.testing import CliRunner
 
 from crowdteleop.cli import app
-from crowdteleop.learn.cli_rl import parse_budget
+from crowdteleop.learn.cli import parse_budget
 from crowdteleop.learn.ppo_policy import process_sequence
 
 runner = CliRunner()

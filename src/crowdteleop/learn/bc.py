@@ -14,7 +14,6 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -179,7 +178,7 @@ class _Progress:
     seconds: float = 0.0
 
 
-def _meta(row: EpochLog) -> dict[str, Any]:
+def _meta(row: EpochLog) -> dict[str, float]:
     return {"epoch": row.epoch, "train_seconds": row.seconds}
 
 
@@ -248,7 +247,7 @@ def _save(
     config: BCConfig,
     data: LearnData,
     norm: Normalisation,
-    meta: dict[str, Any],
+    meta: Mapping[str, float],
 ) -> None:
     checkpoint = {
         "format": CHECKPOINT_FORMAT,
@@ -288,7 +287,7 @@ class Checkpoint:
     obs_dims: tuple[int, ...]
     norm: Normalisation
     net: RNNPolicyNet
-    dataset: dict[str, Any]
+    dataset: dict[str, object]  # what rebuilds its environments (`learn.evaluation`)
     epoch: int
     train_seconds: float
 
@@ -338,11 +337,19 @@ class Policy:
         self._state, self._steps = None, 0
         self._generator.manual_seed(seed)
 
-    def act(self, obs: Mapping[str, npt.NDArray[np.float64]]) -> npt.NDArray[np.float64]:
-        """The action for one observation dict (robomimic's keys; extra keys are ignored), in
-        the layout of the dataset's ``config.actions`` array."""
+    def act(
+        self, obs: Mapping[str, npt.NDArray[np.generic]] | npt.NDArray[np.generic]
+    ) -> npt.NDArray[np.float64]:
+        """The action for one observation, in the layout of the dataset's ``config.actions``
+        array: a dict by robomimic's keys (extra keys are ignored), or those keys already
+        concatenated in order (a `learn.envs` environment's low-dim observation)."""
         ckpt = self.checkpoint
-        flat = np.concatenate([np.asarray(obs[k], dtype=np.float64).ravel() for k in ckpt.obs_keys])
+        if isinstance(obs, np.ndarray):
+            flat = np.asarray(obs, dtype=np.float64).ravel()
+        else:
+            flat = np.concatenate(
+                [np.asarray(obs[k], dtype=np.float64).ravel() for k in ckpt.obs_keys]
+            )
         if flat.shape != (sum(ckpt.obs_dims),):
             raise ValueError(f"observation of size {flat.shape} for keys of sizes {ckpt.obs_dims}")
         x = _tensor(((flat - ckpt.norm.obs_mean) / ckpt.norm.obs_std)[None])

@@ -1,11 +1,12 @@
-"""``crowdteleop learn bc | rl | eval | table`` (torch and the simulators load inside the
+"""``crowdteleop learn bc | rl | eval | table`` (torch, sb3 and the simulators load inside the
 commands, so ``crowdteleop --help`` stays fast)."""
 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import typer
 from rich.console import Console
@@ -13,13 +14,129 @@ from rich.table import Table
 
 from crowdteleop.dataset.cli import clear_errors, progress_columns
 from crowdteleop.learn.actions import ActionKey
-from crowdteleop.learn.cli_rl import eval_ppo, rl
-from crowdteleop.learn.config import BCConfig, Head
+from crowdteleop.learn.config import BCConfig, Head, VecKind
+
+if TYPE_CHECKING:
+    from crowdteleop.learn.evaluation import EvalReport
 
 app = typer.Typer(help="Train policies on datasets and evaluate them.", no_args_is_help=True)
-app.command()(rl)
 console = Console(soft_wrap=True)
 SimChoice = Literal["ours", "robosuite", "both"]
+BUDGET = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kKmM]?|[smh])\s*$")
+
+
+def parse_budget(text: str) -> tuple[int | None, float | None]:
+    """``200k`` / ``1.5M`` / ``50000`` environment steps, or ``90s`` / ``30m`` / ``2h`` of
+    wall time: (steps, seconds), one of them None."""
+    match = BUDGET.match(text)
+    if not match:
+        raise typer.BadParameter(f"{text!r}: give steps (200k, 1.5M) or a time (30m, 2h)")
+    value, unit = float(match[1]), match[2]
+    if unit in ("s", "m", "h"):
+        return None, value * {"s": 1, "m": 60, "h": 3600}[unit]
+    return int(value * {"": 1, "k": 1e3, "K": 1e3, "M": 1e6}[unit]), None
+
+
+@app.command()
+def rl(
+    output: Annotated[Path, typer.Option(help="directory; each seed trains in seed_<k>/")],
+    dataset: Annotated[
+        Path | None,
+        typer.Option(help="built dataset: its simulation, and the demos episodes start from"),
+    ] = None,
+    task: Annotated[str | None, typer.Option(help="task, when no dataset is given")] = None,
+    robot: Annotated[str, typer.Option(help="arm, when no dataset is given")] = "Panda",
+    demos: Annotated[int, typer.Option(help="demos to start from (first n); 0: pure RL")] = 0,
+    seeds: Annotated[int, typer.Option(help="seeds to train, one after another")] = 1,
+    first_seed: Annotated[int, typer.Option(help="the first seed")] = 0,
+    budget: Annotated[
+        str, typer.Option(help="per seed: env steps (200k, 1.5M) or wall time (30m, 2h)")
+    ] = "200k",
+    demo_reset_p: Annotated[float, typer.Option(help="chance a reset starts in a demo")] = 0.9,
+    horizon: Annotated[int, typer.Option(help="steps per training episode")] = 100,
+    n_envs: Annotated[int, typer.Option(help="environments stepping in parallel")] = 4,
+    vec: Annotated[VecKind, typer.Option(help="subproc, dummy (inline) or ray")] = "subproc",
+    ray_address: Annotated[
+        str | None, typer.Option(help="Ray cluster address (--vec ray; default: a local one)")
+    ] = None,
+    n_steps: Annotated[int, typer.Option(help="steps per environment per PPO update")] = 256,
+    ray_actor_cpus: Annotated[float, typer.Option(help="CPUs per Ray actor")] = 1.0,
+    eval_every: Annotated[int, typer.Option(help="env steps between curve points")] = 10_000,
+    resume: Annotated[
+        bool, typer.Option(help="continue from checkpoints where they exist")
+    ] = False,
+    threads: Annotated[int, typer.Option(help="torch CPU threads")] = 1,
+) -> None:
+    """Demonstration-guided PPO (the paper's): episodes start from demo states with
+    probability --demo-reset-p, sparse reward, LSTM 100 then 300-200 for actor and critic."""
+    from crowdteleop.learn.config import PPOConfig
+    from crowdteleop.learn.data import dataset_env_args
+    from crowdteleop.learn.demo_states import load_demo_states
+    from crowdteleop.learn.envs import EnvSettings
+    from crowdteleop.learn.ppo import train_ppo
+
+    steps, seconds = parse_budget(budget)
+    with clear_errors():
+        if dataset is None and demos:
+            raise typer.BadParameter("--demos needs a --dataset to take them from")
+        if dataset is None and task is None:
+            raise typer.BadParameter("give a --dataset (or a --task for pure RL)")
+        states = load_demo_states(dataset, demos or None) if dataset is not None else None
+        env_args = dataset_env_args(dataset) if dataset is not None else None
+        sim_config: dict[str, object] = (
+            states.sim_config
+            if states is not None
+            else {"task": task, "robot": robot, "action_mode": "osc-pose"}
+        )
+        settings = EnvSettings(sim_config=sim_config, horizon=horizon, demo_reset_p=demo_reset_p)
+        for seed in range(first_seed, first_seed + seeds):
+            config = PPOConfig(
+                demos=demos,
+                demo_reset_p=demo_reset_p,
+                horizon=horizon,
+                total_steps=steps or 10**12,
+                budget_s=seconds,
+                n_envs=n_envs,
+                vec=vec,
+                ray_address=ray_address,
+                ray_actor_cpus=ray_actor_cpus,
+                n_steps=n_steps,
+                batch_size=min(256, n_steps * n_envs),
+                eval_every=eval_every,
+                seed=seed,
+                threads=threads,
+            )
+            run = output / f"seed_{seed}"
+            console.print(f"[bold]seed {seed}[/]: {run} ({budget}, {demos} demos)")
+            train_ppo(
+                config,
+                settings,
+                states if demos else None,
+                run,
+                resume=resume,
+                progress_bar=steps is not None,
+                dataset=dataset,
+                env_args=env_args,
+            )
+            _print_curve(run)
+
+
+def _print_curve(run: Path) -> None:
+    import csv
+
+    path = run / "curve.csv"
+    if not path.exists():
+        return
+    rows = list(csv.DictReader(path.open()))
+    table = Table("steps", "minutes", "return (100 steps)", "success", title=str(path))
+    for row in rows[-5:]:
+        table.add_row(
+            row["steps"],
+            f"{float(row['seconds']) / 60:.1f}",
+            f"{float(row['mean_return']):.1f}",
+            f"{float(row['success_rate']):.0%}",
+        )
+    console.print(table)
 
 
 @app.command()
@@ -138,18 +255,29 @@ def evaluate_command(
     (and, for RL, the paper's return: steps solved out of the horizon)."""
     import torch
 
-    from crowdteleop.learn.rl_eval import is_ppo_run
-
-    torch.set_num_threads(threads)
-    if is_ppo_run(checkpoint):
-        eval_ppo(checkpoint, episodes, sim, horizon, seed if seed else 1000, video)
-        return
-
-    from crowdteleop.learn.bc import load_checkpoint
-    from crowdteleop.learn.rollout import EvalReport, evaluate
+    from crowdteleop.learn.evaluation import is_ppo_run
 
     torch.set_num_threads(threads)
     sims: list[Literal["ours", "robosuite"]] = ["ours", "robosuite"] if sim == "both" else [sim]
+    if is_ppo_run(checkpoint):
+        _eval_ppo(checkpoint, episodes, sims, horizon, seed if seed else 1000, video)
+    else:
+        _eval_bc(checkpoint, episodes, sims, horizon, seed, rnn_horizon, output, video)
+
+
+def _eval_bc(
+    checkpoint: Path,
+    episodes: int,
+    sims: list[Literal["ours", "robosuite"]],
+    horizon: int | None,
+    seed: int,
+    rnn_horizon: int | None,
+    output: Path | None,
+    video: int,
+) -> None:
+    from crowdteleop.learn.bc import load_checkpoint
+    from crowdteleop.learn.evaluation import evaluate_checkpoint
+
     reports: list[EvalReport] = []
     with clear_errors():
         policy = load_checkpoint(checkpoint)
@@ -157,11 +285,19 @@ def evaluate_command(
             with console.status(f"{episodes} rollouts in {name}..."):
                 clip = checkpoint.with_name("eval.mp4") if video and name == "ours" else None
                 reports.append(
-                    evaluate(policy, name, episodes, horizon, seed, rnn_horizon, False, clip, video)
+                    evaluate_checkpoint(
+                        policy,
+                        name,
+                        range(seed, seed + episodes),
+                        horizon,
+                        rnn_horizon,
+                        video=clip,
+                        video_episodes=video,
+                    )
                 )
     console.print(results_table(reports))
     target = output or checkpoint.with_name("eval.json")
-    result: dict[str, Any] = {
+    result = {
         "checkpoint": str(checkpoint),
         "epoch": policy.epoch,
         "task": policy.dataset.get("task"),
@@ -170,6 +306,48 @@ def evaluate_command(
     }
     target.write_text(json.dumps(result, indent=2))
     console.print(f"written: {target}")
+
+
+def _eval_ppo(
+    run: Path,
+    episodes: int,
+    sims: list[Literal["ours", "robosuite"]],
+    horizon: int | None,
+    seed: int,
+    video: int,
+) -> None:
+    """A PPO run directory: writes eval.json (and eval.mp4) beside it."""
+    from crowdteleop.learn.evaluation import EVAL_HORIZON, evaluate_run, run_directory
+
+    run = run_directory(run)
+    reports: list[EvalReport] = []
+    with clear_errors():
+        for name in sims:
+            with console.status(f"{episodes} rollouts in {name}..."):
+                reports.append(
+                    evaluate_run(
+                        run,
+                        name,
+                        range(seed, seed + episodes),
+                        horizon or EVAL_HORIZON,
+                        video=run / "eval.mp4" if video and name == "ours" else None,
+                        video_episodes=video,
+                    )
+                )
+    table = Table("simulation", "episodes", "success rate", "return (mean ± std)", "horizon")
+    for report in reports:
+        table.add_row(
+            report.sim,
+            str(len(report.episodes)),
+            f"{report.success_rate:.0%}",
+            f"{report.mean_return:.0f} ± {report.std_return:.0f}",
+            str(report.horizon),
+        )
+    console.print(table)
+    target = run / "eval.json"
+    summaries = {r.sim: r.summary() for r in reports}
+    target.write_text(json.dumps({"checkpoint": str(run), "results": summaries}, indent=2))
+    console.print(f"written: {target}" + (f", {run / 'eval.mp4'}" if video else ""))
 
 
 @app.command()
@@ -196,7 +374,7 @@ def table(
         console.print(f"written: {plot}")
 
 
-def results_table(reports: list[Any]) -> Table:
+def results_table(reports: list[EvalReport]) -> Table:
     table = Table("simulation", "episodes", "successes", "success rate", "mean steps to success")
     for report in reports:
         steps = report.mean_steps_to_success

@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import h5py
 import numpy as np
@@ -43,13 +42,13 @@ class LearnData:
     obs_dims: tuple[int, ...]
     train: list[DemoArrays]
     valid: list[DemoArrays]
-    env_args: dict[str, Any]
-    sim_config: dict[str, Any]
+    env_args: dict[str, object]
+    sim_config: dict[str, object]
     task: str
     controller: str
     action_key: ActionKey = "actions"
     # robosuite's controller that reads ``actions_abs`` (``actions_abs_controller_configs``)
-    abs_controller_configs: dict[str, Any] | None = None
+    abs_controller_configs: dict[str, object] | None = None
 
     @property
     def action_dim(self) -> int:
@@ -115,6 +114,12 @@ def load_learn_data(
         )
 
 
+def dataset_env_args(path: Path) -> dict[str, object]:
+    """robomimic's ``env_args`` of a built dataset (empty if it names none)."""
+    with open_learn_dataset(path) as file:
+        return dict(json.loads(attr_text(file["data"].attrs.get("env_args", "{}"))))
+
+
 def open_learn_dataset(path: Path) -> h5py.File:
     """The dataset open for reading; refused clearly if it is no HDF5 or holds no demos."""
     try:
@@ -155,7 +160,7 @@ def _read_demo(group: h5py.Group, obs_keys: tuple[str, ...], action_key: ActionK
     return DemoArrays(group.name.rpartition("/")[2], obs, actions)
 
 
-def attr_text(value: Any) -> str:
+def attr_text(value: object) -> str:
     """An HDF5 attribute as text (h5py gives bytes or str)."""
     return value.decode() if isinstance(value, bytes) else str(value)
 

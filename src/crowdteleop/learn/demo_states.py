@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import h5py
 import numpy as np
@@ -41,7 +40,7 @@ class DemoTrajectory:
     controller_states: Array  # (N, k): k = 0 for a backend without controller memory
     actions: Array  # (N, A), the recorded actions (to check a restore against the next state)
     model_xml: str
-    sim_config: dict[str, Any]
+    sim_config: dict[str, object]
     reset_seed: int | None
 
     def __len__(self) -> int:
@@ -74,7 +73,7 @@ class DemoStates:
         self.demos = demos
 
     @property
-    def sim_config(self) -> dict[str, Any]:
+    def sim_config(self) -> dict[str, object]:
         return self.demos[0].sim_config
 
     def draw(self, rng: np.random.Generator) -> StartState:

@@ -1,5 +1,5 @@
 """Demonstration-guided PPO (the paper's Sec. 5 and Appendix): sb3-contrib's ``RecurrentPPO``
-with the paper's networks, over `SimEnv` with demonstration-state resets.
+with the paper's networks, over our simulation (`learn.envs`) with demonstration-state resets.
 
 A run directory holds ``run.json`` (what was asked), ``model.zip`` and ``vecnormalize.pkl``
 (the latest checkpoint), ``progress.csv`` (sb3's training log), ``curve.csv`` (the learning
@@ -15,19 +15,19 @@ import time
 import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 from sb3_contrib import RecurrentPPO
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from crowdteleop.learn.config import PPOConfig
 from crowdteleop.learn.demo_states import DemoStates
-from crowdteleop.learn.gym_env import EnvSettings, SimEnv
-from crowdteleop.learn.policy_eval import PolicyRunner, run_policy
+from crowdteleop.learn.envs import EnvSettings, TaskEnv, make_env
+from crowdteleop.learn.evaluation import PolicyRunner, evaluate
 from crowdteleop.learn.ppo_policy import LstmPolicy, MultiInputLstmPolicy
 from crowdteleop.learn.vec import make_vec_env
 
@@ -43,9 +43,9 @@ class RunInfo:
     demos: int
     seed: int
     dataset: str | None
-    env: dict[str, Any]  # EnvSettings
-    config: dict[str, Any]  # PPOConfig
-    env_args: dict[str, Any] | None  # robomimic's, from the dataset: plain robosuite's scene
+    env: dict[str, object]  # EnvSettings
+    config: dict[str, object]  # PPOConfig
+    env_args: dict[str, object] | None  # robomimic's, from the dataset: plain robosuite's scene
 
 
 def train_ppo(
@@ -56,7 +56,7 @@ def train_ppo(
     resume: bool = False,
     progress_bar: bool = False,
     dataset: Path | None = None,
-    env_args: dict[str, Any] | None = None,
+    env_args: dict[str, object] | None = None,
 ) -> Path:
     """Trains until ``config.total_steps`` (or ``budget_s``); returns the checkpoint's path.
     With ``resume``, a run that has a checkpoint continues from it (its steps and seconds
@@ -79,7 +79,7 @@ def train_ppo(
             config.demos,
             config.seed,
             str(dataset) if dataset else None,
-            asdict(settings),
+            settings.to_json(),
             config.model_dump(mode="json"),
             env_args,
         )
@@ -182,7 +182,7 @@ class CurveCallback(BaseCallback):
         self.started = time.perf_counter()
         self.next_eval = steps_before + config.eval_every if steps_before else 0
         self.next_checkpoint = steps_before + config.checkpoint_every
-        self._eval_env: SimEnv | None = None
+        self._eval_env: TaskEnv | None = None
 
     def seconds(self) -> float:
         return self.seconds_before + time.perf_counter() - self.started
@@ -202,13 +202,11 @@ class CurveCallback(BaseCallback):
         if self._eval_env is None:
             from dataclasses import replace
 
-            self._eval_env = SimEnv(replace(self.settings, demo_reset_p=0.0))
+            self._eval_env = make_env(replace(self.settings, demo_reset_p=0.0))
         runner = PolicyRunner(self.model, self.model.get_vec_normalize_env())
         rng = np.random.default_rng(10_000 + self.config.seed)
-        outcomes = [
-            run_policy(self._eval_env, runner, int(rng.integers(2**31)), self.settings.horizon)
-            for _ in range(self.config.eval_episodes)
-        ]
+        seeds = [int(rng.integers(2**31)) for _ in range(self.config.eval_episodes)]
+        report = evaluate(runner, self._eval_env, seeds)
         path = self.output / "curve.csv"
         new = not path.exists()
         with path.open("a", newline="") as file:
@@ -219,13 +217,13 @@ class CurveCallback(BaseCallback):
                 [
                     steps,
                     round(self.seconds(), 1),
-                    float(np.mean([o.episode_return for o in outcomes])),
-                    float(np.mean([o.success for o in outcomes])),
-                    len(outcomes),
+                    report.mean_return,
+                    report.success_rate,
+                    len(report.episodes),
                 ]
             )
 
-    def checkpoint(self, model: Any) -> None:
+    def checkpoint(self, model: BaseAlgorithm) -> None:
         model.save(str(self.output / "model.zip"))
         normalizer = model.get_vec_normalize_env()
         if normalizer is not None:

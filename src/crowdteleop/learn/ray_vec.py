@@ -1,8 +1,9 @@
 """Training environments as Ray actors: the paper trained with 32 distributed actors; this runs
 ``n_envs`` environments anywhere on a Ray cluster (``address``), or on a local one Ray starts.
 
-Each actor holds one `SimEnv` and resets it itself when an episode ends, as sb3's
-``SubprocVecEnv`` workers do (the last observation goes back in ``terminal_observation``).
+Each actor holds one `learn.envs.TaskEnv` over our simulation and resets it itself when an
+episode ends, as sb3's ``SubprocVecEnv`` workers do (the last observation goes back in
+``terminal_observation``).
 The demonstrations travel once, through Ray's object store.
 
 Ray has no authentication and listens on every interface: run a cluster only where its ports
@@ -12,16 +13,27 @@ are private (docs/learning.md); the test runs it in a loopback-only network name
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
+from stable_baselines3.common.vec_env.base_vec_env import (
+    VecEnv,
+    VecEnvIndices,
+    VecEnvObs,
+    VecEnvStepReturn,
+)
 from stable_baselines3.common.vec_env.subproc_vec_env import _stack_obs
 
 from crowdteleop.learn.demo_states import DemoStates
-from crowdteleop.learn.gym_env import EnvSettings, make_env
+from crowdteleop.learn.envs import Action, EnvSettings, Observation, make_env
+
+if TYPE_CHECKING:
+    from ray import ObjectRef
+    from ray.actor import ActorHandle
+
+StepReply = tuple[Observation, float, bool, dict[str, object]]
 
 
 class EnvActor:
@@ -30,13 +42,15 @@ class EnvActor:
     def __init__(self, settings: EnvSettings, demos: DemoStates | None) -> None:
         self.env = make_env(settings, demos)
 
-    def spaces(self) -> tuple[gym.Space[Any], gym.Space[Any]]:
+    def spaces(self) -> tuple[gym.Space[Observation], gym.Space[Action]]:
         return self.env.observation_space, self.env.action_space
 
-    def reset(self, seed: int | None, options: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+    def reset(
+        self, seed: int | None, options: dict[str, object]
+    ) -> tuple[Observation, dict[str, object]]:
         return self.env.reset(seed=seed, options=options or None)
 
-    def step(self, action: npt.NDArray[np.float32]) -> tuple[Any, float, bool, dict[str, Any]]:
+    def step(self, action: npt.NDArray[np.float32]) -> StepReply:
         obs, reward, terminated, truncated, info = self.env.step(action)
         done = terminated or truncated
         info["TimeLimit.truncated"] = truncated and not terminated
@@ -46,13 +60,13 @@ class EnvActor:
             info["reset_info"] = reset_info
         return obs, float(reward), done, info
 
-    def get_attr(self, name: str) -> Any:
+    def get_attr(self, name: str) -> object:
         return getattr(self.env, name)
 
-    def set_attr(self, name: str, value: Any) -> None:
+    def set_attr(self, name: str, value: object) -> None:
         setattr(self.env, name, value)
 
-    def call(self, name: str, args: tuple[Any, ...], kwargs: dict[str, Any]) -> Any:
+    def call(self, name: str, args: tuple[object, ...], kwargs: dict[str, object]) -> object:
         return getattr(self.env, name)(*args, **kwargs)
 
     def close(self) -> None:
@@ -84,15 +98,21 @@ class RayVecEnv(VecEnv):
             )
         remote = ray.remote(num_cpus=actor_cpus)(EnvActor)
         demos_ref = ray.put(demos)
-        self._actors: list[Any] = [remote.remote(settings, demos_ref) for _ in range(n_envs)]
-        observation_space, action_space = ray.get(self._actors[0].spaces.remote())
+        self._actors = [
+            cast("ActorHandle[EnvActor]", remote.remote(settings, demos_ref)) for _ in range(n_envs)
+        ]
+        spaces = cast(
+            "tuple[gym.Space[Observation], gym.Space[Action]]",
+            ray.get(self._actors[0].spaces.remote()),
+        )
+        observation_space, action_space = spaces
         super().__init__(n_envs, observation_space, action_space)
-        self._pending: list[Any] = []
+        self._pending: list[ObjectRef[StepReply]] = []
 
-    def reset(self) -> Any:
+    def reset(self) -> VecEnvObs:
         import ray
 
-        replies = ray.get(
+        replies: list[tuple[Observation, dict[str, object]]] = ray.get(
             [
                 actor.reset.remote(self._seeds[i], self._options[i])
                 for i, actor in enumerate(self._actors)
@@ -138,15 +158,15 @@ class RayVecEnv(VecEnv):
         if self._started_ray:
             ray.shutdown()
 
-    def _targets(self, indices: VecEnvIndices) -> list[Any]:
+    def _targets(self, indices: VecEnvIndices) -> list[ActorHandle[EnvActor]]:
         return [self._actors[i] for i in self._get_indices(indices)]
 
-    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[object]:
         import ray
 
         return list(ray.get([a.get_attr.remote(attr_name) for a in self._targets(indices)]))
 
-    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+    def set_attr(self, attr_name: str, value: object, indices: VecEnvIndices = None) -> None:
         import ray
 
         ray.get([a.set_attr.remote(attr_name, value) for a in self._targets(indices)])
@@ -154,10 +174,10 @@ class RayVecEnv(VecEnv):
     def env_method(
         self,
         method_name: str,
-        *method_args: Any,
+        *method_args: object,
         indices: VecEnvIndices = None,
-        **method_kwargs: Any,
-    ) -> list[Any]:
+        **method_kwargs: object,
+    ) -> list[object]:
         import ray
 
         calls = [
@@ -170,5 +190,7 @@ class RayVecEnv(VecEnv):
     ) -> list[bool]:
         return [False for _ in self._get_indices(indices)]
 
-    def get_images(self) -> Sequence[npt.NDArray[Any] | None]:
-        return self.env_method("render")
+    def get_images(self) -> Sequence[npt.NDArray[np.uint8] | None]:
+        return [
+            image if isinstance(image, np.ndarray) else None for image in self.env_method("render")
+        ]

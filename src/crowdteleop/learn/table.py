@@ -9,10 +9,13 @@ import json
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 # The paper's Table 1: return out of 1000 after 24 h (can) / 48 h (round nut), 10 seeds.
 PAPER_TABLE = {
@@ -209,7 +212,7 @@ def plot_curves(results: list[RunResult], output: Path) -> None:
     plt.close(fig)
 
 
-def _plot_panel(axis: Any, runs: list[RunResult], file: str, x_key: str, y_key: str) -> None:
+def _plot_panel(axis: Axes, runs: list[RunResult], file: str, x_key: str, y_key: str) -> None:
     by_demos: dict[int, list[Curve]] = defaultdict(list)
     for run in runs:
         path = run.path / file

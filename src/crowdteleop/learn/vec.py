@@ -6,14 +6,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from functools import partial
-from typing import Any
 
 import gymnasium as gym
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecMonitor
 
 from crowdteleop.learn.config import VecKind
 from crowdteleop.learn.demo_states import DemoStates
-from crowdteleop.learn.gym_env import EnvSettings, make_env
+from crowdteleop.learn.envs import Action, EnvSettings, Observation, make_env
 
 
 def make_vec_env(
@@ -27,7 +26,7 @@ def make_vec_env(
 ) -> VecEnv:
     """``n_envs`` environments seeded ``seed, seed + 1, ...``, with episode statistics
     (``VecMonitor``: return, length, and whether the episode was solved)."""
-    factories: list[Callable[[], gym.Env[Any, Any]]] = [
+    factories: list[Callable[[], gym.Env[Observation, Action]]] = [
         partial(make_env, settings, demos) for _ in range(n_envs)
     ]
     venv: VecEnv

@@ -1,6 +1,7 @@
-"""The Gymnasium environment over our simulation, as a learner sees it: Gymnasium's own
-checker passes, the reward is sparse (1 on every solved step), training episodes stop at the
-paper's 100-step horizon, and bad actions are refused with a clear error."""
+"""The Gymnasium environments, as a learner sees them: Gymnasium's own checker passes, the
+reward is sparse (1 on every solved step), training episodes stop at the paper's 100-step
+horizon, and bad actions are refused with a clear error; plain robosuite rebuilt from the
+dataset's env_args is the same environment to a policy (spaces, observation keys, success)."""
 
 from __future__ import annotations
 
@@ -9,8 +10,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from crowdteleop.errors import InvalidActionError
+from crowdteleop.learn.data import dataset_env_args
 from crowdteleop.learn.demo_states import StartState, load_demo_states
-from crowdteleop.learn.gym_env import PAPER_HORIZON, EnvSettings, SimEnv
+from crowdteleop.learn.envs import PAPER_HORIZON, EnvSettings, make_env, robosuite_scene
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +22,7 @@ def demos(lift_dataset):
 
 @pytest.fixture
 def env(demos):
-    env = SimEnv(EnvSettings(sim_config=demos.sim_config), demos)
+    env = make_env(EnvSettings(sim_config=demos.sim_config), demos)
     yield env
     env.close()
 
@@ -58,7 +60,7 @@ def test_training_episodes_are_truncated_at_the_papers_horizon(env):
 
 
 def test_terminate_on_success_ends_the_episode_when_solved(demos):
-    env = SimEnv(EnvSettings(sim_config=demos.sim_config, terminate_on_success=True), demos)
+    env = make_env(EnvSettings(sim_config=demos.sim_config, terminate_on_success=True), demos)
     try:
         env.reset(options={"start": StartState(0, len(demos.demos[0]) - 1)})
         assert env.step(np.zeros(7, dtype=np.float32))[2] is True
@@ -75,7 +77,7 @@ def test_a_nan_action_is_refused_with_a_clear_error(env):
 
 def test_camera_observations_are_an_image_beside_the_low_dim_vector(demos):
     settings = EnvSettings(sim_config=demos.sim_config, camera="frontview", image_size=64)
-    env = SimEnv(settings)
+    env = make_env(settings)
     try:
         obs, _ = env.reset(seed=0)
         assert obs["image"].shape == (64, 64, 3) and obs["image"].dtype == np.uint8
@@ -88,4 +90,38 @@ def test_camera_observations_are_an_image_beside_the_low_dim_vector(demos):
 
 def test_an_unknown_observation_key_names_the_ones_there_are(demos):
     with pytest.raises(ValueError, match="robot0_eef_pos"):
-        SimEnv(EnvSettings(sim_config=demos.sim_config, obs_keys=("no_such_key",)))
+        make_env(EnvSettings(sim_config=demos.sim_config, obs_keys=("no_such_key",)))
+
+
+@pytest.fixture(scope="module")
+def scene(lift_dataset):
+    return robosuite_scene(dataset_env_args(lift_dataset))
+
+
+@pytest.fixture
+def plain(demos, scene):
+    env = make_env(EnvSettings(sim_config=demos.sim_config), sim="robosuite", scene=scene)
+    yield env
+    env.close()
+
+
+def test_gymnasiums_checker_passes_on_plain_robosuite(plain):
+    check_env(plain, skip_render_check=True)
+
+
+def test_both_simulations_are_the_same_environment_to_a_policy(env, plain):
+    assert plain.observation_space == env.observation_space
+    assert plain.action_space == env.action_space
+    assert set(plain.named_observations()) == set(env.named_observations())
+    for each in (env, plain):
+        obs, info = each.reset(seed=3)
+        assert obs.dtype == np.float32 and info["success"] is False
+        _, reward, _, _, info = each.step(np.zeros(7, dtype=np.float32))
+        assert reward == 0.0 and info["success"] is False
+        with pytest.raises(InvalidActionError, match="NaN"):
+            each.step(np.full(7, np.nan, dtype=np.float32))
+
+
+def test_plain_robosuite_starts_no_episode_from_demonstrations(demos, scene):
+    with pytest.raises(ValueError, match="demonstration"):
+        make_env(EnvSettings(sim_config=demos.sim_config), demos, sim="robosuite", scene=scene)
