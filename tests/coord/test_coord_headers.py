@@ -75,7 +75,7 @@ def test_pages_files_and_api_answers_all_carry_the_security_headers(client):
 
 def test_scripts_and_styles_are_served_with_their_types_so_nosniff_lets_them_run(client):
     files = sorted(p.relative_to(STATIC).as_posix() for p in STATIC.rglob("*") if p.is_file())
-    vendored = "vendor/js-aruco2-2.0.0/aruco_detector.js"
+    vendored = "vendor/js-aruco2-2.0.0/aruco.js"
     assert vendored in files, "the vendored scripts are served too"
     for name in files:
         response = client.get(f"/static/{name}")

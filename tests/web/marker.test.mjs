@@ -13,7 +13,7 @@ import {
 import { refineCorners } from "../../src/crowdteleop/web/static/corners.js";
 
 const require = createRequire(import.meta.url);
-const { AR } = require("../../src/crowdteleop/web/static/vendor/js-aruco2-2.0.0/aruco_detector.js");
+const { AR } = require("../../src/crowdteleop/web/static/vendor/js-aruco2-2.0.0/aruco.js");
 
 const bits = () => new AR.Dictionary(MARKER_DICTIONARY).codeList[MARKER_ID];
 const WIDTH = 640, HEIGHT = 480, F = focalPx(WIDTH);
