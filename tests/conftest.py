@@ -14,6 +14,7 @@ import pytest
 
 from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.sim.interface import Simulation
+from tests.fixtures.exclusive import MARKER, room
 
 _GUARD = pytest.StashKey[tuple[subprocess.Popen, Path]]()
 
@@ -26,6 +27,14 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         cwd=Path(__file__).parent.parent,
     )
     session.config.stash[_GUARD] = (guard, log)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
+    """Setup, call and teardown of a test that measures time run alone (tests/fixtures/
+    exclusive.py): the other worker's test must not eat into its rate."""
+    with room(exclusive=item.get_closest_marker(MARKER) is not None):
+        yield
 
 
 def pytest_terminal_summary(terminalreporter, config: pytest.Config) -> None:

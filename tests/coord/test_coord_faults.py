@@ -40,6 +40,7 @@ async def bot_mid_episode(http: httpx.AsyncClient, sid: str, elapsed_s: float) -
     return client
 
 
+@pytest.mark.exclusive  # runs alone under xdist: given up within 10 s
 @pytest.mark.parametrize("spares", [0, 1], ids=["fresh-server", "warm-spare"])
 def test_a_frozen_teleop_server_is_given_up_within_10_s_and_its_episode_kept(tmp_path, spares):
     """The next server recovers the frozen one's write-ahead log, whether it is started for

@@ -23,6 +23,8 @@ from crowdteleop.coord.app import create_app
 from crowdteleop.coord.guard.http_limits import uvicorn_options
 from tests.fixtures.coord import FakeLauncher, coord_config, served_app
 
+pytestmark = pytest.mark.exclusive  # runs alone under xdist: request timeouts, timed
+
 TIMEOUT_S = 1.5
 SLACK = 3  # a connection must be answered or closed within SLACK * TIMEOUT_S
 

@@ -5,7 +5,11 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 from tests.fixtures.coord import ADMIN, Api, FakeLauncher, coord_config, in_process_app
+
+pytestmark = pytest.mark.exclusive  # runs alone under xdist: a slot freed within 10 s
 
 FAST_PROBES = {"health_interval_s": 0.2, "health_timeout_s": 0.5, "unresponsive_after_s": 1.5}
 

@@ -21,7 +21,11 @@ from tests.fixtures.netns import NEEDS_ROOT, run_check
 
 CHECK = Path(__file__).parents[1] / "fixtures" / "ray_launch_check.py"
 
-pytestmark = [pytest.mark.slow, NEEDS_ROOT]
+pytestmark = [
+    pytest.mark.slow,
+    NEEDS_ROOT,
+    pytest.mark.exclusive,
+]  # runs alone under xdist: the control rate before and after a node loss
 
 
 def test_sessions_spread_over_raylets_survive_a_coordinator_restart_and_a_node_loss(tmp_path):

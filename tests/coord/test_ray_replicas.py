@@ -22,7 +22,11 @@ from tests.fixtures.netns import NEEDS_ROOT, run_check
 
 CHECK = Path(__file__).parents[1] / "fixtures" / "ray_replicas_check.py"
 
-pytestmark = [pytest.mark.slow, NEEDS_ROOT]
+pytestmark = [
+    pytest.mark.slow,
+    NEEDS_ROOT,
+    pytest.mark.xdist_group("ray"),
+]  # one Ray cluster at a time (they share /tmp/ray)
 
 
 def test_replicas_share_one_queue_and_a_stopped_one_loses_no_session(tmp_path, shared_database):

@@ -14,6 +14,8 @@ from crowdteleop.crowd.report import summary
 from crowdteleop.crowd.worker import CrowdSettings, run_crowd
 from tests.fixtures.coord import ADMIN, coord_server
 
+pytestmark = pytest.mark.exclusive  # runs alone under xdist: the bots' frame rates
+
 CAMPAIGN = {
     "name": "crowd",
     "title": "Lift the cube",

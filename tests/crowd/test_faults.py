@@ -62,6 +62,7 @@ def test_a_workers_path_cut_for_5_s_resumes_and_the_worker_completes(tmp_path):
     assert len(episodes) >= len(worker["outcomes"])
 
 
+@pytest.mark.exclusive  # runs alone under xdist: noticed within 5 s
 def test_a_killed_teleop_server_is_noticed_the_worker_told_and_given_a_new_robot(tmp_path):
     """kill -9 of a worker's teleop server mid-episode: the coordinator notices within 5 s,
     tells the worker, gives them a new robot with their count kept (the bot reconnects as

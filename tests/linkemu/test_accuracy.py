@@ -20,7 +20,10 @@ from crowdteleop.linkemu.measure import (
 from crowdteleop.linkemu.netns import emulated_link
 from crowdteleop.linkemu.shaping import LinkSettings
 
-pytestmark = pytest.mark.slow
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.exclusive,
+]  # runs alone under xdist: the link's delay and rate, measured
 PAYLOAD = 1400
 
 

@@ -12,6 +12,8 @@ from crowdteleop.linkemu.shaping import (
     read_mahimahi_trace,
 )
 
+pytestmark = pytest.mark.exclusive  # runs alone under xdist: the link's delay and rate, measured
+
 
 def test_a_constant_rate_serializes_packets_back_to_back_then_adds_the_delay():
     link = Direction(LinkSettings(rate_bps=8_000_000, delay_ms=20))  # 1 byte per µs

@@ -10,6 +10,8 @@ import pytest
 
 from crowdteleop.teleop.clock import FixedRateClock
 
+pytestmark = pytest.mark.exclusive  # runs alone under xdist: a fixed-rate clock, timed
+
 
 def test_the_clock_keeps_its_rate_and_skips_rather_than_bursts():
     async def run():

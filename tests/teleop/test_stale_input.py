@@ -12,9 +12,13 @@ import asyncio
 import time
 
 import numpy as np
+import pytest
 
 from crowdteleop.client.connection import TeleopClient
 from tests.fixtures.teleop_process import TOKEN, run, teleop_server
+
+# runs alone under xdist: ages of poses and stalls, in milliseconds
+pytestmark = pytest.mark.exclusive
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 

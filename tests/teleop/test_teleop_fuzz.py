@@ -94,6 +94,9 @@ payloads = st.one_of(
     st.integers(4_200, 9_000).map(lambda n: '{"v": 1, "type": "pose", "pad": "' + "x" * n + '"}'),
 )
 
+# runs alone under xdist: the control loop keeps its rate under a flood
+pytestmark = pytest.mark.exclusive
+
 
 class LoopThread:
     """An event loop in a thread, so hypothesis (synchronous) can feed live aiortc clients."""

@@ -26,7 +26,10 @@ from crowdteleop.coord.fleet.launcher import teleop_server_argv
 from tests.fixtures import link_client
 from tests.fixtures.teleop_process import ADMIN_TOKEN, TOKEN, teleop_config
 
-pytestmark = pytest.mark.slow
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.exclusive,
+]  # runs alone under xdist: frame rate and queueing on a slow link
 
 RATE = "500kbit"
 

@@ -13,6 +13,8 @@ from crowdteleop.recording.episode_file import read_episode
 from crowdteleop.sim import SimConfig, make_simulation
 from tests.fixtures.teleop_process import ADMIN_TOKEN, TOKEN, run, teleop_server
 
+pytestmark = pytest.mark.exclusive  # runs alone under xdist: frame and control rates
+
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
 
