@@ -1,5 +1,5 @@
 """The coordinator's worker API as a worker's pages call it: join, session, heartbeat, offer,
-phone pairing. The bodies are the coordinator's own models (`coord.schemas`)."""
+phone pairing. The bodies are the coordinator's own models (`coord.api.schemas`)."""
 
 from __future__ import annotations
 
