@@ -23,7 +23,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from crowdteleop.dataset.build import build_dataset
+from crowdteleop.dataset.build import BuildOptions, build_dataset
 from crowdteleop.dataset.scripted import scripted_rig
 from crowdteleop.recording.s3 import S3Config, S3Storage
 from crowdteleop.recording.wal_codec import encode_steps
@@ -221,7 +221,8 @@ def upload(paths: list[Path], uploads: int) -> dict[str, Any]:
 def build(directory: Path, out: Path, episodes: int) -> dict[str, Any]:
     results = {}
     for label, tolerance in (("with_drift_check", 1e-6), ("without", None)):
-        report = build_dataset([directory], out / f"{label}.hdf5", drift_tolerance=tolerance)
+        options = BuildOptions(drift_tolerance=tolerance)
+        report = build_dataset([directory], out / f"{label}.hdf5", options)
         results[label] = {"seconds": report.seconds, "demos_per_s": episodes / report.seconds}
     return results
 

@@ -15,7 +15,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from crowdteleop.dataset.build import build_dataset
+from crowdteleop.dataset.build import BuildOptions, build_dataset
 from crowdteleop.dataset.observations import parse_obs
 from crowdteleop.dataset.scripted import record_scripted_episode, scripted_rig
 
@@ -38,9 +38,8 @@ def main(episodes: int = 10, runs: int = 3, task: str = "lift", controller: str 
                 build_dataset(
                     [folder],
                     Path(work) / "out.hdf5",
+                    BuildOptions(drift_tolerance=None, obs=parse_obs([variant])),
                     overwrite=True,
-                    drift_tolerance=None,
-                    obs=parse_obs([variant]),
                 )
                 seconds[variant].append(time.perf_counter() - started)
     table = Table(

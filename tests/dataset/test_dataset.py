@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from crowdteleop.cli import app
-from crowdteleop.dataset.build import build_dataset
+from crowdteleop.dataset.build import BuildOptions, build_dataset
 from crowdteleop.dataset.files import DatasetError, dataset_demos
 from crowdteleop.dataset.scripted import record_scripted_episode, scripted_rig
 from tests.fixtures.episodes import record_lift_episodes
@@ -220,7 +220,7 @@ def test_bad_inputs_give_a_clear_error_and_touch_nothing(episodes, dataset, tmp_
         build_dataset([inputs], existing, overwrite=True)
     assert _sha(existing) == before[0]
 
-    report = build_dataset([inputs], tmp_path / "skipped.hdf5", skip_bad=True)
+    report = build_dataset([inputs], tmp_path / "skipped.hdf5", BuildOptions(skip_bad=True))
     assert len(report.demos) == 1 and "foreign.hdf5" in report.skipped[0][0]
 
     for command in (

@@ -159,8 +159,7 @@ def test_episodes_split_across_files_and_chunks_by_size(
         ["agentview"],
         64,
         48,
-        data_files_size_in_mb=1e-6,
-        video_files_size_in_mb=video_mb,
+        layout=lerobot.LeRobotLayout(data_files_size_in_mb=1e-6, video_files_size_in_mb=video_mb),
     )
     videos = sorted((output / "videos" / CAMERA).glob("*/*.mp4"))
     data = sorted((output / "data").glob("*/*.parquet"))

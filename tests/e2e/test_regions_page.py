@@ -18,7 +18,7 @@ from typing import Any
 import h5py
 import pytest
 
-from crowdteleop.dataset.build import build_dataset, episode_files, read_inputs
+from crowdteleop.dataset.build import BuildOptions, build_dataset, episode_files, read_inputs
 from crowdteleop.dataset.files import dataset_demos
 from crowdteleop.dataset.stats import compute_stats
 from crowdteleop.linkemu.netns import EmulatedLink, emulated_link
@@ -190,7 +190,7 @@ def test_a_joining_worker_lands_in_the_nearest_region_with_a_free_robot(tmp_path
     # The dataset keeps them apart: a filter key per region, and the paper's tables by region.
     dataset = tmp_path / "regions.hdf5"
     sources = [tmp_path / region / "data" / "episodes" for region in ("near", "far")]
-    build_dataset(sources, dataset, include_failed=True, drift_tolerance=None)
+    build_dataset(sources, dataset, BuildOptions(include_failed=True, drift_tolerance=None))
     with h5py.File(dataset, "r") as file:
         assert {"region_near", "region_far"} <= set(file["mask"])
         assert file["data/demo_1"].attrs["region"] in ("near", "far")

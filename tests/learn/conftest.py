@@ -11,7 +11,7 @@ import h5py
 import numpy as np
 import pytest
 
-from crowdteleop.dataset.build import build_dataset
+from crowdteleop.dataset.build import BuildOptions, build_dataset
 from crowdteleop.dataset.scripted import record_scripted_episode, scripted_rig
 
 N_DEMOS = 3
@@ -54,6 +54,6 @@ def lift_dataset(tmp_path_factory) -> Path:
         for seed in range(N_DEMOS):
             assert record_scripted_episode(rig, episodes, f"lift-{seed}", seed).outcome == "success"
     output = tmp_path_factory.mktemp("learn-dataset") / "lift.hdf5"
-    build_dataset([episodes], output, drift_tolerance=None, valid_fraction=0.34)
+    build_dataset([episodes], output, BuildOptions(drift_tolerance=None, valid_fraction=0.34))
     add_low_dim_obs(output)
     return output

@@ -61,6 +61,21 @@ DEFAULT_DRIFT_TOLERANCE = 1e-6  # max |state error| of action replay in the reco
 DEFAULT_OBS = parse_obs([LOW_DIM])
 
 
+@dataclass(frozen=True)
+class BuildOptions:
+    """What goes into a dataset and how it is checked (``crowdteleop dataset build``'s flags)."""
+
+    include_failed: bool = False  # keep unsuccessful episodes too
+    task: str | None = None  # only this task's episodes
+    fastest: Sequence[int] = ()  # a ``fastest_<N>`` filter key for each N
+    valid_fraction: float = 0.1  # share of demos in ``mask/valid``
+    seed: int = 0  # of the train/valid split
+    skip_bad: bool = False  # leave unreadable episodes out (said why) instead of stopping
+    # max action-replay state error before a demo is flagged (not dropped); None: no replay
+    drift_tolerance: float | None = DEFAULT_DRIFT_TOLERANCE
+    obs: ObsSpec = DEFAULT_OBS  # observations computed from the states
+
+
 @dataclass
 class Work:
     """Progress over the build's passes, in demo-steps."""
@@ -124,34 +139,30 @@ def episode_files(sources: Sequence[Path]) -> list[Path]:
 def build_dataset(
     sources: Sequence[Path],
     output: Path,
+    options: BuildOptions | None = None,
     *,
-    include_failed: bool = False,
-    task: str | None = None,
-    fastest: Sequence[int] = (),
-    valid_fraction: float = 0.1,
-    seed: int = 0,
-    skip_bad: bool = False,
     overwrite: bool = False,
-    drift_tolerance: float | None = DEFAULT_DRIFT_TOLERANCE,
     progress: Callable[[int, int], None] | None = None,
-    obs: ObsSpec = DEFAULT_OBS,
 ) -> BuildReport:
-    """Assemble episode files into one dataset file; ``drift_tolerance`` None skips the
-    action-replay check (otherwise demos beyond it are flagged, not dropped); ``obs`` says
-    which observations to compute from the states (robosuite's low-dim keys by default)."""
+    """Assemble episode files into one dataset file, as ``options`` say (``BuildOptions()``:
+    successful episodes, low-dim observations, demos whose action replay drifts past 1e-6
+    flagged); ``overwrite`` replaces an existing ``output``."""
+    options = options or BuildOptions()
+    drift_tolerance = options.drift_tolerance
     started = time.perf_counter()
     output = Path(output)
     if output.exists() and not overwrite:
         raise DatasetError(f"{output} exists; pass --overwrite to replace it")
-    episodes, skipped = read_inputs(episode_files(sources), skip_bad)
+    episodes, skipped = read_inputs(episode_files(sources), options.skip_bad)
     chosen = [
         (path, ep)
         for path, ep in episodes
-        if (include_failed or ep.outcome == "success")
-        and (task is None or ep.metadata.get("task") == task)
+        if (options.include_failed or ep.outcome == "success")
+        and (options.task is None or ep.metadata.get("task") == options.task)
     ]
     if not chosen:
-        raise DatasetError(f"no {'' if include_failed else 'successful '}episodes to build from")
+        which = "" if options.include_failed else "successful "
+        raise DatasetError(f"no {which}episodes to build from")
     chosen.sort(key=lambda pair: (pair[1].created_at, pair[1].episode_id))
     # read_inputs refused episodes without env_args
     envs = {ep.env_args["env_name"] for _, ep in chosen}  # type: ignore[index]
@@ -181,7 +192,7 @@ def build_dataset(
     output.parent.mkdir(parents=True, exist_ok=True)
     try:
         with h5py.File(tmp, "w") as file:
-            _write(file, chosen, report, fastest, valid_fraction, seed, drift_tolerance, work, obs)
+            _write(file, chosen, report, options, work)
         with open(tmp, "rb") as handle:
             os.fsync(handle.fileno())
         os.replace(tmp, output)
@@ -196,17 +207,14 @@ def _write(
     file: h5py.File,
     chosen: list[tuple[Path, Episode]],
     report: BuildReport,
-    fastest: Sequence[int],
-    valid_fraction: float,
-    seed: int,
-    drift_tolerance: float | None,
+    options: BuildOptions,
     work: Work,
-    obs: ObsSpec,
 ) -> None:
     from crowdteleop.dataset.replay import ReplayChecker, demo_of_episode
 
     first = demo_of_episode(chosen[0][1])
-    env_args = dataset_env_args(first, obs)
+    env_args = dataset_env_args(first, options.obs)
+    drift_tolerance = options.drift_tolerance
     versions = runtime_versions()
     now = time.localtime()
     file.attrs.update(format=DATASET_FORMAT, schema_version=SCHEMA_VERSION)
@@ -231,10 +239,12 @@ def _write(
         )
     checker = ReplayChecker()
     try:
-        _write_demos(data, chosen, report, checker, work, obs, env_args.arm)
+        _write_demos(data, chosen, report, checker, work, options.obs, env_args.arm)
     finally:
         checker.close()
-    _write_masks(file, report.demos, report.flagged, fastest, valid_fraction, seed)
+    _write_masks(
+        file, report.demos, report.flagged, options.fastest, options.valid_fraction, options.seed
+    )
 
 
 def _write_demos(

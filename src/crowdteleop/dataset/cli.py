@@ -107,27 +107,24 @@ def build(
     ] = None,
 ) -> None:
     """Assemble episode files into a robomimic-compatible demo.hdf5."""
-    from crowdteleop.dataset.build import build_dataset
+    from crowdteleop.dataset.build import BuildOptions, build_dataset
     from crowdteleop.dataset.observations import LOW_DIM, parse_obs
 
     with clear_errors(), tempfile.TemporaryDirectory() as work:
         wanted = parse_obs(obs or [LOW_DIM])
         paths = _local_sources(sources, s3_endpoint, Path(work))
         with _progress("checking and assembling") as progress:
-            report = build_dataset(
-                paths,
-                output,
-                task=task,
+            options = BuildOptions(
                 include_failed=include_failed,
+                task=task,
                 fastest=fastest or (),
                 valid_fraction=valid_fraction,
                 seed=seed,
                 skip_bad=skip_bad,
-                overwrite=overwrite,
                 drift_tolerance=None if drift_tolerance < 0 else drift_tolerance,
-                progress=progress,
                 obs=wanted,
             )
+            report = build_dataset(paths, output, options, overwrite=overwrite, progress=progress)
     for path, why in report.skipped:
         errors.print(f"[yellow]skipped[/yellow] {path}: {why}")
     for name in report.flagged:

@@ -22,6 +22,7 @@ import json
 import os
 import shutil
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -74,6 +75,19 @@ _PARQUET: dict[str, Any] = {"compression": "snappy", "use_dictionary": True}
 _MB = 1024**2
 
 
+@dataclass(frozen=True)
+class LeRobotLayout:
+    """How the export's files are encoded and cut: LeRobot's own defaults unless changed
+    (``encoding=LEROBOT_H264`` for H.264; small sizes to split episodes across files)."""
+
+    encoding: VideoEncoding = LEROBOT_AV1
+    data_files_size_in_mb: float = DATA_FILES_SIZE_IN_MB
+    video_files_size_in_mb: float = VIDEO_FILES_SIZE_IN_MB
+
+
+LEROBOT_LAYOUT = LeRobotLayout()
+
+
 def state_keys(low_dim: Sequence[str]) -> list[str]:
     """The order ``observation.state`` concatenates low-dim keys in: robot first, then object."""
     return sorted(low_dim, key=lambda key: (not key.startswith("robot"), key))
@@ -110,9 +124,7 @@ def export_lerobot(
     width: int,
     height: int,
     progress: Progress | None = None,
-    encoding: VideoEncoding = LEROBOT_AV1,
-    data_files_size_in_mb: float = DATA_FILES_SIZE_IN_MB,
-    video_files_size_in_mb: float = VIDEO_FILES_SIZE_IN_MB,
+    layout: LeRobotLayout = LEROBOT_LAYOUT,
 ) -> Path:
     """A LeRobotDataset v3.0 directory, written whole or not at all (refuses a non-empty one)."""
     if output.exists() and any(output.iterdir()):
@@ -127,8 +139,7 @@ def export_lerobot(
         robots = EnvArgs.model_validate_json(file["data"].attrs["env_args"]).robots
     tmp = output.with_name(f".{output.name}.{os.getpid()}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
-    sizes = {"data": data_files_size_in_mb, "video": video_files_size_in_mb}
-    writer = _Writer(tmp, round(hz), cameras, encoding, sizes)
+    writer = _Writer(tmp, round(hz), cameras, layout)
     total, done = total_steps(dataset), 0
 
     def tick() -> None:
@@ -164,14 +175,14 @@ class _Writer:
         root: Path,
         fps: int,
         cameras: Sequence[str],
-        encoding: VideoEncoding,
-        sizes_mb: dict[str, float],
+        layout: LeRobotLayout,
     ) -> None:
-        self.root, self.fps, self.encoding, self.sizes_mb = root, fps, encoding, sizes_mb
+        self.root, self.fps, self.layout = root, fps, layout
         self.cameras = {camera: f"observation.images.{camera}" for camera in cameras}
-        self.data = _ParquetFiles(_paths(root, DATA_PATH), sizes_mb["data"] * _MB)
+        self.data = _ParquetFiles(_paths(root, DATA_PATH), layout.data_files_size_in_mb * _MB)
+        video_bytes = layout.video_files_size_in_mb * _MB
         self.videos = {
-            key: Mp4Files(_paths(root, VIDEO_PATH, video_key=key), sizes_mb["video"] * _MB)
+            key: Mp4Files(_paths(root, VIDEO_PATH, video_key=key), video_bytes)
             for key in self.cameras.values()
         }
         self.columns: dict[str, list[npt.NDArray[Any]]] = {}
@@ -210,7 +221,7 @@ class _Writer:
         entry |= {"dataset_from_index": start, "dataset_to_index": start + n}
         stats: dict[str, dict[str, Any]] = {key: _stats(a) for key, a in frame.items()}
         for camera, key in self.cameras.items():
-            clip = encode_clip(obs.images[camera], self.fps, self.encoding)
+            clip = encode_clip(obs.images[camera], self.fps, self.layout.encoding)
             placed = self.videos[key].append(clip)
             entry |= _indices(placed.file, f"videos/{key}/")
             entry |= {f"videos/{key}/from_timestamp": placed.start_s}
@@ -228,7 +239,8 @@ class _Writer:
         """The last data and video files, then the metadata: episodes, tasks, stats and info."""
         assert self.names is not None
         self.close()
-        meta = _ParquetFiles(_paths(self.root, EPISODES_PATH), self.sizes_mb["data"] * _MB)
+        meta_bytes = self.layout.data_files_size_in_mb * _MB
+        meta = _ParquetFiles(_paths(self.root, EPISODES_PATH), meta_bytes)
         for entry in self.episodes:  # placed with a stand-in file index, stamped when written
             meta.append(pa.Table.from_pylist([entry | _indices(0, "meta/episodes/")]))
         meta.flush()
@@ -256,8 +268,8 @@ class _Writer:
             "total_frames": self.episodes[-1]["dataset_to_index"],
             "total_tasks": len(self.tasks),
             "chunks_size": CHUNKS_SIZE,
-            "data_files_size_in_mb": self.sizes_mb["data"],
-            "video_files_size_in_mb": self.sizes_mb["video"],
+            "data_files_size_in_mb": self.layout.data_files_size_in_mb,
+            "video_files_size_in_mb": self.layout.video_files_size_in_mb,
             "fps": self.fps,
             "splits": {"train": f"0:{len(self.episodes)}"},
             "data_path": DATA_PATH,

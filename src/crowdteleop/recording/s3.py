@@ -272,23 +272,27 @@ class S3Storage:
                 "AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY"
             )
         if isinstance(error, ClientError):
-            code = _code(error)
-            if code in _ACCESS_CODES:
-                return StorageAccessError(
-                    f"{what}: {where} refused these credentials ({code}): check the access "
-                    "key and secret"
-                )
-            if code in _BUCKET_CODES or (code == "404" and what == "check"):
-                return StorageAccessError(
-                    f"{what}: {where} does not exist ({code}): create it or fix the bucket name"
-                )
-            status = error.response.get("ResponseMetadata", {}).get("HTTPStatusCode", 0)
-            if status >= 500 or code in ("SlowDown", "RequestTimeout", "InternalError"):
-                return StorageUnavailableError(f"{what}: {where} answered {code}")
-            return StorageError(f"{what}: {where} refused the request: {error}")
+            return _classify_answer(error, what, where)
         if isinstance(error, (EndpointConnectionError, BotoCoreError, OSError)):
             return StorageUnavailableError(f"{what}: cannot reach {where}: {error}")
         return error
+
+
+def _classify_answer(error: Any, what: str, where: str) -> StorageError:
+    """What an error the store answered with (botocore's ``ClientError``) means to a caller."""
+    code = _code(error)
+    if code in _ACCESS_CODES:
+        return StorageAccessError(
+            f"{what}: {where} refused these credentials ({code}): check the access key and secret"
+        )
+    if code in _BUCKET_CODES or (code == "404" and what == "check"):
+        return StorageAccessError(
+            f"{what}: {where} does not exist ({code}): create it or fix the bucket name"
+        )
+    status = error.response.get("ResponseMetadata", {}).get("HTTPStatusCode", 0)
+    if status >= 500 or code in ("SlowDown", "RequestTimeout", "InternalError"):
+        return StorageUnavailableError(f"{what}: {where} answered {code}")
+    return StorageError(f"{what}: {where} refused the request: {error}")
 
 
 def _code(error: Any) -> str:

@@ -175,16 +175,15 @@ def _pack_contacts(contacts: list[Any]) -> tuple[int, bytes, int]:
     names: list[str] = []
     intensities = []
     for contact in contacts:
-        if type(contact) is not dict or tuple(contact) != _CONTACT_KEYS:
+        fields = _contact_fields(contact)
+        if fields is None:
             return _NOT_PACKED
-        part, other, intensity = contact.values()
-        if not (type(part) is str is type(other) and type(intensity) is float):
-            return _NOT_PACKED
+        part, other, intensity = fields
         names += (part, other)
         intensities.append(intensity)
     joined = "\x00".join(names)
     if len(intensities) > 0xFFFF or joined.count("\x00") != len(names) - 1:
-        return _NOT_PACKED
+        return _NOT_PACKED  # too many, or a NUL inside a name
     if not math.isfinite(sum(intensities)):
         return _NOT_PACKED
     try:
@@ -196,6 +195,17 @@ def _pack_contacts(contacts: list[Any]) -> tuple[int, bytes, int]:
 
 
 _NOT_PACKED = -1, b"", 0
+
+
+def _contact_fields(contact: Any) -> tuple[str, str, float] | None:
+    """A contact's robot part, object and intensity if it is exactly a packable contact: a dict
+    of ``_CONTACT_KEYS`` in that order, two strings and a float."""
+    if type(contact) is not dict or tuple(contact) != _CONTACT_KEYS:
+        return None
+    part, other, intensity = contact.values()
+    if not (type(part) is str is type(other) and type(intensity) is float):
+        return None
+    return part, other, intensity
 
 
 def decode_step(payload: bytes, index: int) -> StepRecord:
