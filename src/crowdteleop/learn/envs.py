@@ -26,13 +26,14 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal, Protocol, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
+from pydantic import BaseModel, ConfigDict, Field
 
 from crowdteleop.errors import InvalidActionError
 from crowdteleop.learn.actions import ActionKey
@@ -64,31 +65,21 @@ Action = npt.NDArray[np.float32] | npt.NDArray[np.float64]
 NamedObs = dict[str, Array]  # robomimic's low-dim keys, as the simulation gives them
 
 
-@dataclass(frozen=True)
-class EnvSettings:
+class EnvSettings(BaseModel):
     """What an environment is, beyond which simulation runs it: plain values, so a subprocess
-    or a Ray actor can rebuild it and a run can write it to ``run.json``."""
+    or a Ray actor can rebuild it, and a run writes it to ``run.json`` (read back with
+    ``model_validate``; keys it does not know are ignored, keys it lacks take the defaults)."""
+
+    model_config = ConfigDict(frozen=True, extra="ignore")
 
     sim_config: dict[str, object]  # ours: `SimConfig` fields (the demos' recorded ones)
-    horizon: int = PAPER_HORIZON
-    obs_keys: tuple[str, ...] = STOCK_OBS_KEYS
+    horizon: int = Field(PAPER_HORIZON, ge=1)
+    obs_keys: tuple[str, ...] = Field(STOCK_OBS_KEYS, min_length=1)
     camera: str | None = None
-    image_size: int = 84
-    demo_reset_p: float = 0.9
+    image_size: int = Field(84, ge=1)
+    demo_reset_p: float = Field(0.9, ge=0, le=1, description="chance a reset starts in a demo")
     terminate_on_success: bool = False  # the paper's return counts every solved step
     actions: ActionKey = "actions"
-
-    @classmethod
-    def from_json(cls, values: Mapping[str, object]) -> EnvSettings:
-        """Settings read back from ``run.json`` (keys added since take their defaults)."""
-        known = {f.name for f in fields(cls)}
-        kept = {key: value for key, value in values.items() if key in known}
-        if "obs_keys" in kept:
-            kept["obs_keys"] = tuple(kept["obs_keys"])  # type: ignore[arg-type]  # a JSON list
-        return cls(**kept)  # type: ignore[arg-type]  # JSON values; the dataclass checks none
-
-    def to_json(self) -> dict[str, object]:
-        return asdict(self)
 
 
 @dataclass(frozen=True)
@@ -430,8 +421,6 @@ def make_env(
     """The environment ``settings`` describe, in our simulation or plain robosuite (which
     needs ``scene``, and starts no episode from demonstrations). Everything is picklable, so a
     vectorised runner can call it in a fresh process."""
-    if not 0.0 <= settings.demo_reset_p <= 1.0:
-        raise ValueError(f"demo_reset_p must be in [0, 1], got {settings.demo_reset_p}")
     backend: Backend
     if sim == "ours":
         backend = OurSimulation(settings, demos, scene)

@@ -18,7 +18,7 @@ import json
 import time
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
@@ -332,7 +332,9 @@ def run_env(
     env = info.get("env")
     if not isinstance(env, Mapping):
         raise LearnDataError("run.json names no environment settings ('env')")
-    settings = replace(EnvSettings.from_json(env), demo_reset_p=0.0, horizon=horizon)
+    settings = EnvSettings.model_validate(env).model_copy(
+        update={"demo_reset_p": 0.0, "horizon": horizon}
+    )
     scene = None
     if sim == "robosuite":
         env_args = info.get("env_args")

@@ -79,7 +79,7 @@ def train_ppo(
             config.demos,
             config.seed,
             str(dataset) if dataset else None,
-            settings.to_json(),
+            settings.model_dump(mode="json"),
             config.model_dump(mode="json"),
             env_args,
         )
@@ -200,9 +200,7 @@ class CurveCallback(BaseCallback):
 
     def record_curve_point(self, steps: int) -> None:
         if self._eval_env is None:
-            from dataclasses import replace
-
-            self._eval_env = make_env(replace(self.settings, demo_reset_p=0.0))
+            self._eval_env = make_env(self.settings.model_copy(update={"demo_reset_p": 0.0}))
         runner = PolicyRunner(self.model, self.model.get_vec_normalize_env())
         rng = np.random.default_rng(10_000 + self.config.seed)
         seeds = [int(rng.integers(2**31)) for _ in range(self.config.eval_episodes)]
