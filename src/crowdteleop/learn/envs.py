@@ -97,8 +97,8 @@ def robosuite_scene(
     abs_controller_configs: Mapping[str, object] | None = None,
 ) -> RobosuiteScene:
     """robomimic's ``env_args`` (and the dataset's ``actions_abs_controller_configs``) as
-    `RobosuiteScene`. The one place `crowdteleop.learn` reads those dicts: when recordings
-    carry typed provenance, this is what changes."""
+    `RobosuiteScene`. The one place `crowdteleop.learn` reads those dicts, so the one place
+    to switch to the typed ``crowdteleop.provenance.env_args.EnvArgs``."""
     if not env_args or not isinstance(env_args.get("env_name"), str):
         raise LearnDataError("the dataset has no env_args to rebuild plain robosuite from")
     kwargs = env_args.get("env_kwargs") or {}
