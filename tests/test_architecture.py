@@ -27,7 +27,7 @@ MAY_IMPORT: dict[str, set[str]] = {
     "teleop": BASE | {"tasks", "sim", "control", "recording"},
     "client": BASE | {"tasks", "sim", "control", "teleop"},
     "dataset": BASE | {"tasks", "sim", "control", "recording", "provenance"},
-    "learn": BASE | {"tasks", "sim", "control", "recording", "dataset"},
+    "learn": BASE | {"tasks", "sim", "control", "recording", "dataset", "provenance"},
     "web": set(),
     "linkemu": set(),
     "coord": BASE | {"tasks", "recording", "teleop", "web"},
@@ -223,8 +223,7 @@ def _coord_violations(graph: dict[str, set[str]]) -> list[str]:
 
 def _sources() -> dict[str, ast.Module]:
     return {
-        _module_name(path): ast.parse(path.read_text(), str(path))
-        for path in PACKAGE.rglob("*.py")
+        _module_name(path): ast.parse(path.read_text(), str(path)) for path in PACKAGE.rglob("*.py")
     }
 
 

@@ -200,8 +200,7 @@ async def racing_replicas(tmp_path: Path, database: str) -> tuple[int, list[str]
         launchers.append(launcher)
     campaign = replicas[0].config.default_campaign
     workers = [
-        (await stores[0].workers.join(campaign.name, "prolific", f"racer{n}"))[0]
-        for n in range(40)
+        (await stores[0].workers.join(campaign.name, "prolific", f"racer{n}"))[0] for n in range(40)
     ]
     most = 0
 

@@ -39,6 +39,7 @@ from crowdteleop.dataset.observations import (
 )
 from crowdteleop.dataset.summary import summarize
 from crowdteleop.provenance.controllers import ArmController
+from crowdteleop.provenance.env_args import EnvArgs
 from crowdteleop.recording.episode_file import DEMO, CorruptEpisodeError, Episode, read_episode
 from crowdteleop.recording.metadata import EpisodeMetadata
 from crowdteleop.recording.storage import fsync_directory
@@ -165,7 +166,7 @@ def build_dataset(
         raise DatasetError(f"no {which}episodes to build from")
     chosen.sort(key=lambda pair: (pair[1].created_at, pair[1].episode_id))
     # read_inputs refused episodes without env_args
-    envs = {ep.env_args["env_name"] for _, ep in chosen}  # type: ignore[index]
+    envs = {EnvArgs.model_validate(ep.env_args).env_name for _, ep in chosen}
     if len(envs) > 1:
         raise DatasetError(
             f"episodes of several environments ({', '.join(sorted(envs))}): a robomimic "

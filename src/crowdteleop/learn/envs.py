@@ -33,13 +33,15 @@ import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from crowdteleop.errors import InvalidActionError
 from crowdteleop.learn.actions import ActionKey
 from crowdteleop.learn.config import STOCK_OBS_KEYS
 from crowdteleop.learn.data import LearnDataError
 from crowdteleop.learn.demo_states import DemoStates, StartState
+from crowdteleop.provenance.controllers import CompositeController, OscPose
+from crowdteleop.provenance.env_args import EnvArgs
 
 if TYPE_CHECKING:
     from crowdteleop.dataset.absolute import AbsoluteTargets
@@ -84,40 +86,40 @@ class EnvSettings(BaseModel):
 
 @dataclass(frozen=True)
 class RobosuiteScene:
-    """What plain robosuite is rebuilt from, read out of a dataset's ``env_args``."""
+    """What plain robosuite is rebuilt from: a dataset's typed ``env_args`` and, for an
+    actions_abs policy, its ``actions_abs_controller_configs``."""
 
-    env_name: str
-    env_kwargs: dict[str, object]  # robosuite.make's, with `PLAIN_DEFAULTS` where silent
-    arm_controller: dict[str, object]  # the arm's part of ``controller_configs`` ({} if none)
-    abs_controller_configs: dict[str, object] | None  # robosuite's OSC reading actions_abs
+    env_args: EnvArgs
+    abs_controller: CompositeController | None  # robosuite's OSC reading actions_abs
+
+    @property
+    def env_name(self) -> str:
+        return self.env_args.env_name
+
+    @property
+    def env_kwargs(self) -> dict[str, object]:
+        """robosuite.make's, with `PLAIN_DEFAULTS` where the dataset is silent."""
+        return {**PLAIN_DEFAULTS, **self.env_args.robosuite_kwargs()}
 
 
 def robosuite_scene(
     env_args: Mapping[str, object] | None,
     abs_controller_configs: Mapping[str, object] | None = None,
 ) -> RobosuiteScene:
-    """robomimic's ``env_args`` (and the dataset's ``actions_abs_controller_configs``) as
-    `RobosuiteScene`. The one place `crowdteleop.learn` reads those dicts, so the one place
-    to switch to the typed ``crowdteleop.provenance.env_args.EnvArgs``."""
-    if not env_args or not isinstance(env_args.get("env_name"), str):
+    """robomimic's ``env_args`` (and the dataset's ``actions_abs_controller_configs``), read
+    through the provenance layer; a clear error for what is not one of ours."""
+    if not env_args:
         raise LearnDataError("the dataset has no env_args to rebuild plain robosuite from")
-    kwargs = env_args.get("env_kwargs") or {}
-    if not isinstance(kwargs, Mapping):
-        raise LearnDataError(f"env_args['env_kwargs'] is not a mapping: {kwargs!r}")
-    arm = _nested(kwargs, "controller_configs", "body_parts", "right")
-    return RobosuiteScene(
-        env_name=str(env_args["env_name"]),
-        env_kwargs={**PLAIN_DEFAULTS, **kwargs},
-        arm_controller=arm,
-        abs_controller_configs=dict(abs_controller_configs) if abs_controller_configs else None,
-    )
-
-
-def _nested(values: Mapping[str, object], *keys: str) -> dict[str, object]:
-    for key in keys:
-        inner = values.get(key)
-        values = inner if isinstance(inner, Mapping) else {}
-    return dict(values)
+    try:
+        typed = EnvArgs.model_validate(env_args)
+        absolute = (
+            CompositeController.model_validate(abs_controller_configs)
+            if abs_controller_configs
+            else None
+        )
+    except ValidationError as exc:
+        raise LearnDataError(f"the dataset's env_args are not robosuite's: {exc}") from exc
+    return RobosuiteScene(env_args=typed, abs_controller=absolute)
 
 
 class Backend(Protocol):
@@ -296,11 +298,11 @@ class OurSimulation:
 
         if settings.actions != "actions_abs":
             return None
-        arm = scene.arm_controller if scene is not None else {}
-        if arm.get("type") != "OSC_POSE":
+        arm = scene.env_args.arm if scene is not None else None
+        if not isinstance(arm, OscPose):
             raise LearnDataError(
                 "an actions_abs policy rolls out in our simulation for osc demos only "
-                f"(these were recorded with {arm.get('type') or 'an unknown controller'}); "
+                f"(these were recorded with {arm.type if arm else 'an unknown controller'}); "
                 "evaluate it with --sim robosuite"
             )
         return AbsoluteTargets(self.sim.kinematics(), arm)
@@ -360,9 +362,9 @@ class PlainRobosuite:
         overrides: dict[str, object] = {}
         self._absolute = settings.actions == "actions_abs"
         if self._absolute:
-            if not scene.abs_controller_configs:
+            if scene.abs_controller is None:
                 raise LearnDataError("the dataset named no actions_abs_controller_configs")
-            overrides["controller_configs"] = scene.abs_controller_configs
+            overrides["controller_configs"] = scene.abs_controller.to_robosuite()
         if render or settings.camera is not None:
             overrides["has_offscreen_renderer"] = True
         self.env = robosuite.make(scene.env_name, **{**scene.env_kwargs, **overrides})

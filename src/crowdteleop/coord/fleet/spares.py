@@ -197,4 +197,3 @@ class SparePool:
         """Stop watching a spare that keeps running (another replica has it now)."""
         if isinstance(self.launcher, ReattachingLauncher):
             self.launcher.release(handle)
-

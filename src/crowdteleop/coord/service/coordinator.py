@@ -345,9 +345,7 @@ class Coordinator:
         if session is None:
             return
         report_token = new_token()
-        await self._sessions.update_session(
-            session_id, report_token_hash=token_hash(report_token)
-        )
+        await self._sessions.update_session(session_id, report_token_hash=token_hash(report_token))
         try:
             config = self._configs.for_session(session, report_token)
             key = (session.task, session.robot, session.controller)
