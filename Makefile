@@ -19,7 +19,7 @@ test: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks
 	$(VENV)/bin/mypy  # src/, as configured in pyproject.toml (strict on the seams)
 	CROWDTELEOP_PYTHON=$(PY) node --test tests/web/  # the pages' JS: schema validator, protocol, latency
-	$(PY) -m pytest -n 2 --dist loadgroup $(PYTEST_ARGS)  # tests that measure time run alone
+	$(PY) -m pytest -n 2 --dist loadscope $(PYTEST_ARGS)  # a module per worker; timed tests alone
 
 ## The quick loop while coding (~N min): lint, types, and every test not marked slow.
 quick: $(STAMP)

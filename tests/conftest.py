@@ -14,7 +14,7 @@ import pytest
 
 from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.sim.interface import Simulation
-from tests.fixtures.exclusive import MARKER, room
+from tests.fixtures.exclusive import EXCLUSIVE, SERIAL, room
 
 _GUARD = pytest.StashKey[tuple[subprocess.Popen, Path]]()
 
@@ -31,9 +31,10 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
-    """Setup, call and teardown of a test that measures time run alone (tests/fixtures/
-    exclusive.py): the other worker's test must not eat into its rate."""
-    with room(exclusive=item.get_closest_marker(MARKER) is not None):
+    """Setup, call and teardown of a test that measures time run alone, and of tests that
+    share a machine-wide resource one at a time (tests/fixtures/exclusive.py)."""
+    serial = tuple(str(mark.args[0]) for mark in item.iter_markers(SERIAL))
+    with room(exclusive=item.get_closest_marker(EXCLUSIVE) is not None, serial=serial):
         yield
 
 

@@ -20,9 +20,10 @@ from pathlib import Path
 from tests.fixtures.exclusive import room
 log, name, wait_for = Path(sys.argv[1]), sys.argv[2], sys.argv[3]
 exclusive = name == "alone"
+serial = ("ray",) if name.startswith("ray") else ()
 with log.open("a") as out:
     out.write(f"{name} at the door\\n"); out.flush()
-    with room(exclusive):
+    with room(exclusive, serial):
         out.write(f"{name} in\\n"); out.flush()
         while wait_for and wait_for + " at the door" not in log.read_text():
             time.sleep(0.01)
@@ -68,3 +69,15 @@ def test_a_waiting_exclusive_test_is_let_in_before_newcomers(tmp_path):
     lines = log.read_text().splitlines()
     assert lines.index("shared out") < lines.index("alone in") < lines.index("alone out"), lines
     assert lines.index("alone out") < lines.index("late in"), lines
+
+
+def test_tests_naming_one_resource_never_run_at_once(tmp_path):
+    """Two Ray tests (each ends every cluster on the machine when it stops its own) on two
+    workers: the second starts only once the first is done, though neither is exclusive."""
+    log, run = tmp_path / "log", secrets.token_hex(4)
+    first = _holder(log, "ray-1", "ray-2", run)  # in until the second queues up
+    _until(log, "ray-1 in")
+    second = _holder(log, "ray-2", "", run)
+    assert first.wait(30) == 0 and second.wait(30) == 0
+    lines = log.read_text().splitlines()
+    assert lines.index("ray-1 out") < lines.index("ray-2 in"), lines

@@ -25,6 +25,7 @@ pytestmark = [
     pytest.mark.slow,
     NEEDS_ROOT,
     pytest.mark.exclusive,
+    pytest.mark.serial("ray"),  # `ray stop --force` ends every cluster on the machine
 ]  # runs alone under xdist: the control rate before and after a node loss
 
 

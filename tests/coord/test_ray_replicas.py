@@ -25,8 +25,8 @@ CHECK = Path(__file__).parents[1] / "fixtures" / "ray_replicas_check.py"
 pytestmark = [
     pytest.mark.slow,
     NEEDS_ROOT,
-    pytest.mark.xdist_group("ray"),
-]  # one Ray cluster at a time (they share /tmp/ray)
+    pytest.mark.serial("ray"),  # `ray stop --force` ends every cluster on the machine
+]
 
 
 def test_replicas_share_one_queue_and_a_stopped_one_loses_no_session(tmp_path, shared_database):

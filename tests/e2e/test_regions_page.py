@@ -26,7 +26,8 @@ from crowdteleop.linkemu.shaping import LinkSettings
 from crowdteleop.teleop.ready import stop_gracefully, wait_ready
 from tests.fixtures.browser import browser_context, consent_to_video, require_chromium, wait_js
 
-pytestmark = pytest.mark.slow
+# runs alone under xdist: the near round trip must stay well under the far one
+pytestmark = [pytest.mark.slow, pytest.mark.exclusive]
 ADMIN = "regions-admin-token-0123456789"
 ONE_WAY_DELAY_MS = 60.0
 NEAR_PORT, FAR_PORT = 8100, 8000

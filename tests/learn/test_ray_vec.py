@@ -18,7 +18,7 @@ import pytest
 CHECK = Path(__file__).parents[1] / "fixtures" / "ray_vec_check.py"
 
 pytestmark = [
-    pytest.mark.xdist_group("ray"),  # one Ray cluster at a time (they share /tmp/ray)
+    pytest.mark.serial("ray"),  # `ray stop --force` ends every cluster on the machine
     pytest.mark.slow,
     pytest.mark.skipif(
         os.geteuid() != 0,

@@ -125,9 +125,9 @@ async def _one_robot(
         await worker.wait_for(lambda state: state.frames_received > 0, 60)
         if report.first_frame_s is None:
             report.first_frame_s = time.monotonic() - joined_at
-        bot = Bot(driver, seed=index + 1000 * report.reconnects, observer=observer)
-        if settings.window_s is None:
+        if settings.window_s is None:  # the bot drives from the moment it exists
             await _wait_for_gate(settings.start_gate)
+        bot = Bot(driver, seed=index + 1000 * report.reconnects, observer=observer)
         streaming = asyncio.create_task(bot.stream(30.0))
         try:
             if settings.window_s is not None:
