@@ -21,7 +21,7 @@ test: $(STAMP)
 	CROWDTELEOP_PYTHON=$(PY) node --test tests/web/  # the pages' JS: schema validator, protocol, latency
 	$(PY) -m pytest -n 2 --dist loadscope $(PYTEST_ARGS)  # a module per worker; timed tests alone
 
-## The quick loop while coding (~N min): lint, types, and every test not marked slow.
+## The quick loop while coding: lint, types, and every test not marked slow.
 quick: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks
 	$(VENV)/bin/mypy
