@@ -254,10 +254,11 @@ def test_an_absolute_policy_of_ik_velocity_demos_is_refused_in_our_simulation(ab
 
     from crowdteleop.learn.evaluation import open_env
 
+    from crowdteleop.provenance.controllers import CompositeController, JointPosition
+
     dataset = json.loads(json.dumps(absolute.dataset))
-    dataset["env_args"]["env_kwargs"]["controller_configs"]["body_parts"]["right"]["type"] = (
-        "JOINT_POSITION"
-    )
+    servo = CompositeController.of(JointPosition.velocity_servo(1.0, 0.05))  # ik-velocity's
+    dataset["env_args"]["env_kwargs"]["controller_configs"] = servo.to_robosuite()
     with (
         pytest.raises(LearnDataError, match="osc demos only"),
         open_env(replace(absolute, dataset=dataset), "ours"),
