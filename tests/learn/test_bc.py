@@ -253,7 +253,6 @@ def test_an_absolute_policy_of_ik_velocity_demos_is_refused_in_our_simulation(ab
     from dataclasses import replace
 
     from crowdteleop.learn.evaluation import open_env
-
     from crowdteleop.provenance.controllers import CompositeController, JointPosition
 
     dataset = json.loads(json.dumps(absolute.dataset))

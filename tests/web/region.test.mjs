@@ -5,7 +5,7 @@ import assert from "node:assert/strict";
 import { test } from "node:test";
 
 import {
-  chooseRegion, decodeRoundTrips, encodeRoundTrips, joinUrlAt, measure, roundTrips,
+  chooseRegion, decodeRoundTrips, encodeRoundTrips, joinUrlAt, measure, networkTiming, roundTrips,
 } from "../../src/crowdteleop/web/static/region.js";
 
 const region = (name, rtt_ms, free_slots, queued = 0, capacity = 2) =>
@@ -77,4 +77,24 @@ test("the chosen region's join page keeps the link's study ids and adds the roun
   assert.equal(url.searchParams.get("PROLIFIC_PID"), "p1");
   assert.equal(url.searchParams.get("campaign"), "pilot");
   assert.equal(url.searchParams.get("region_rtts"), "oregon:180,china:20");
+});
+
+test("the network's own timing of a ping is preferred to the page's clock", async () => {
+  let clock = 0;
+  const fetchImpl = async () => {
+    clock += 45; // a busy page resolves the promise late
+    return { ok: true, json: async () => ({ region: "near", capacity: 1, free_slots: 1, queued: 0 }) };
+  };
+  const timing = (url, since) => {
+    assert.equal(url, "https://near.example.org/api/ping");
+    assert.equal(typeof since, "number");
+    return 5; // request sent to first byte, as Resource Timing reports it
+  };
+  const measured = await measure({ name: "near", url: "https://near.example.org" },
+                                 { fetchImpl, now: () => clock, timing });
+  assert.equal(measured.rtt_ms, 5);
+});
+
+test("without a timing entry (no Resource Timing, or none allowed) the page's clock is used", () => {
+  assert.equal(networkTiming("https://nowhere.example.org/api/ping", 0), null);
 });

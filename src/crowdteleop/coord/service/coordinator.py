@@ -46,6 +46,7 @@ from crowdteleop.coord.service.campaign import CampaignConfig
 from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.liveness import Liveness
 from crowdteleop.coord.service.metrics import CoordMetrics, RestartCause
+from crowdteleop.coord.service.occupancy import Occupancy, OccupancyCache
 from crowdteleop.coord.service.reaper import RESTART, verdict
 from crowdteleop.coord.service.replication import Replication, orphans
 from crowdteleop.coord.service.spools import SWEEP_INTERVAL_S, SpoolSweeper
@@ -90,6 +91,7 @@ class Coordinator:
             self._sessions, self._pool, launcher, self._replicas, self._metrics
         )
         self._waits = WaitEstimates(self._sessions, config, lambda: self._pool.capacity)
+        self._occupancy = OccupancyCache(self.live_sessions, lambda: self._pool.capacity)
         self._admission = AdmissionRules(self._sessions, config, self._metrics, self._waits)
         self._liveness = Liveness(self._pool, config, self.restart)
         self._spools = SpoolSweeper(config, self._sessions)
@@ -243,6 +245,10 @@ class Coordinator:
         """Queued ones in queue order (oldest first), then the others."""
         return await self._sessions.live_sessions()
 
+    async def occupancy(self) -> Occupancy:
+        """Slots held and workers queued, at most a second old (`service/occupancy.py`)."""
+        return await self._occupancy.current()
+
     async def queue_positions(self) -> dict[str, tuple[int, float]]:
         """Queued session id -> (1-based position, estimated wait in seconds)."""
         return await self._waits.positions()
@@ -315,7 +321,10 @@ class Coordinator:
         return max(0, self._pool.capacity - await self._sessions.held_slots())
 
     async def _admit(self) -> None:
-        """Give free slots to the oldest queued sessions (caller holds the lock)."""
+        """Give free slots to the oldest queued sessions (caller holds the lock). Every change
+        of this replica's sessions (a new one, an end, a restart, a take-over) comes here, so
+        the pings' remembered occupancy is dropped here too."""
+        self._occupancy.forget()
         free = await self._free_slots()
         if free == 0:
             return

@@ -12,10 +12,24 @@ const median = (values) => {
   return sorted.length % 2 ? sorted[middle] : (sorted[middle - 1] + sorted[middle]) / 2;
 };
 
+// How long the browser's network stack waited for a ping's answer (request sent to first byte,
+// from Resource Timing; the ping allows it with Timing-Allow-Origin), or null where it does not
+// say. Timed by the page instead, a busy main thread (a page still loading its modules, video
+// being decoded) adds its own delay to the promise and the page measures itself, not distance.
+export function networkTiming(url, since) {
+  const entries = globalThis.performance?.getEntriesByName?.(url, "resource") ?? [];
+  const entry = entries.at(-1);
+  if (!entry || entry.startTime < since || !(entry.requestStart > 0) || !(entry.responseStart > 0)) {
+    return null;
+  }
+  return entry.responseStart - entry.requestStart;
+}
+
 // One region's round trip (median of the timed pings, ms) and how free it is; `error` instead
 // when it cannot be reached in time or answers something else.
 export async function measure(region, { pings = PINGS, timeoutMs = PING_TIMEOUT_MS,
-                                        fetchImpl = fetch, now = () => performance.now() } = {}) {
+                                        fetchImpl = fetch, now = () => performance.now(),
+                                        timing = networkTiming } = {}) {
   const url = new URL("/api/ping", region.url).href;
   const times = [];
   let last = null;
@@ -26,7 +40,7 @@ export async function measure(region, { pings = PINGS, timeoutMs = PING_TIMEOUT_
       const start = now();
       const response = await fetchImpl(url, { cache: "no-store", mode: "cors", signal: abort.signal });
       last = await response.json();
-      if (i > 0 || pings === 1) times.push(now() - start);
+      if (i > 0 || pings === 1) times.push(timing(url, start) ?? now() - start);
       if (!response.ok) return { ...region, error: `HTTP ${response.status}` };
     } catch (error) {
       return { ...region, error: error.name === "AbortError" ? "timed out" : String(error.message || error) };
