@@ -101,7 +101,6 @@ def _finger(side: str, sign: int) -> str:
 
 def lift_scene_xml() -> str:
     """The lift task: the arm, a table and a red 4.5 cm cube on it."""
-    bx, by, bz = ROBOT_BASE_POS
     cameras = "\n    ".join(
         (
             _camera("frontview", (1.6, 0.0, 1.45), (-0.15, 0.0, 0.95)),
@@ -110,7 +109,24 @@ def lift_scene_xml() -> str:
         )
     )
     return f"""<mujoco model="crowdteleop_lift">
-  <compiler angle="radian" autolimits="true"/>
+{_settings_and_assets()}  <worldbody>
+    <light name="key" directional="true" pos="0.5 0.5 3" dir="-0.2 -0.2 -1" diffuse="0.6 0.6 0.6"
+           castshadow="true"/>
+    <light name="fill" directional="true" pos="-1 -1 3" dir="0.3 0.3 -1" diffuse="0.25 0.25 0.25"
+           castshadow="false"/>
+    <geom name="floor" type="plane" size="3 3 0.05" material="floor"/>
+{_table()}    {cameras}
+{_arm()}{_cube()}  </worldbody>
+  <actuator>
+    {_actuators()}
+  </actuator>
+</mujoco>
+"""
+
+
+def _settings_and_assets() -> str:
+    """Physics and look: the solver, lights' quality, textures, materials, geom classes."""
+    return f"""  <compiler angle="radian" autolimits="true"/>
   <option timestep="{TIMESTEP}" integrator="implicitfast" cone="elliptic" impratio="10"/>
   <visual>
     <headlight ambient="0.3 0.3 0.3" diffuse="0.4 0.4 0.4" specular="0.1 0.1 0.1"/>
@@ -148,13 +164,11 @@ def lift_scene_xml() -> str:
       </default>
     </default>
   </default>
-  <worldbody>
-    <light name="key" directional="true" pos="0.5 0.5 3" dir="-0.2 -0.2 -1" diffuse="0.6 0.6 0.6"
-           castshadow="true"/>
-    <light name="fill" directional="true" pos="-1 -1 3" dir="0.3 0.3 -1" diffuse="0.25 0.25 0.25"
-           castshadow="false"/>
-    <geom name="floor" type="plane" size="3 3 0.05" material="floor"/>
-    <body name="table" pos="0 0 0">
+"""
+
+
+def _table() -> str:
+    return f"""    <body name="table" pos="0 0 0">
       <geom name="table_top" type="box" pos="0 0 {TABLE_TOP_Z - 0.025:g}"
             size="{TABLE_HALF} {TABLE_HALF} 0.025" material="table"/>
       <geom class="leg" pos="0.35 0.35 0.3875"/>
@@ -162,8 +176,13 @@ def lift_scene_xml() -> str:
       <geom class="leg" pos="-0.35 0.35 0.3875"/>
       <geom class="leg" pos="-0.35 -0.35 0.3875"/>
     </body>
-    {cameras}
-    <body name="robot_base" pos="{bx:g} {by:g} {bz:g}">
+"""
+
+
+def _arm() -> str:
+    """The six-joint arm on its base, with the two-finger hand (`ee_site` at its tip)."""
+    bx, by, bz = ROBOT_BASE_POS
+    return f"""    <body name="robot_base" pos="{bx:g} {by:g} {bz:g}">
       <geom class="robot" type="cylinder" pos="0 0 {-bz / 2:g}" size="0.09 {bz / 2:g}"
             material="joint"/>
       <geom class="robot" type="cylinder" pos="0 0 0.03" size="0.08 0.03" material="link"/>
@@ -200,16 +219,15 @@ def lift_scene_xml() -> str:
         </body>
       </body>
     </body>
-    <body name="cube" pos="0 0 {TABLE_TOP_Z + CUBE_HALF:g}">
+"""
+
+
+def _cube() -> str:
+    return f"""    <body name="cube" pos="0 0 {TABLE_TOP_Z + CUBE_HALF:g}">
       <freejoint name="cube_joint"/>
       <geom name="cube" type="box" size="{CUBE_HALF} {CUBE_HALF} {CUBE_HALF}" material="cube"
             density="1000" friction="1.2 0.01 0.001" condim="4"/>
     </body>
-  </worldbody>
-  <actuator>
-    {_actuators()}
-  </actuator>
-</mujoco>
 """
 
 
