@@ -81,6 +81,41 @@ class Normalisation:
         )
 
 
+def _training_data(dataset: Path, config: BCConfig) -> LearnData:
+    """The dataset's train and valid demos, the train ones cut to ``config.max_demos``."""
+    data = load_learn_data(
+        dataset, config.obs_keys, config.train_filter, config.valid_filter, config.actions
+    )
+    if config.max_demos is None:
+        return data
+    if config.max_demos > len(data.train):
+        raise LearnDataError(
+            f"{dataset}: {config.max_demos} training demos were asked for; "
+            f"mask/{config.train_filter} lists {len(data.train)}"
+        )
+    return replace(data, train=data.train[: config.max_demos])
+
+
+def _train_epoch(
+    net: RNNPolicyNet,
+    optimizer: torch.optim.Optimizer,
+    train: SequenceSampler,
+    config: BCConfig,
+    rng: np.random.Generator,
+) -> float:
+    """``config.steps_per_epoch`` gradient steps; the mean training loss."""
+    net.train()
+    losses = []
+    for _ in range(config.steps_per_epoch):
+        obs, actions = train.sample(config.batch_size, rng)
+        loss = net.loss(_tensor(obs), _tensor(actions))
+        optimizer.zero_grad()
+        loss.backward()  # type: ignore[no-untyped-call]  # torch leaves it untyped
+        optimizer.step()
+        losses.append(loss.item())
+    return float(np.mean(losses))
+
+
 def train_bc(
     dataset: Path,
     output: Path,
@@ -97,16 +132,7 @@ def train_bc(
     torch.set_num_threads(threads)
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
-    data = load_learn_data(
-        dataset, config.obs_keys, config.train_filter, config.valid_filter, config.actions
-    )
-    if config.max_demos is not None:
-        if config.max_demos > len(data.train):
-            raise LearnDataError(
-                f"{dataset}: {config.max_demos} training demos were asked for; "
-                f"mask/{config.train_filter} lists {len(data.train)}"
-            )
-        data = replace(data, train=data.train[: config.max_demos])
+    data = _training_data(dataset, config)
     norm = Normalisation.fit(data.train, config.normalize_obs)
     train = SequenceSampler([norm.demo(d) for d in data.train], config.seq_length)
     valid = SequenceSampler([norm.demo(d) for d in data.valid], config.seq_length)
@@ -130,19 +156,9 @@ def train_bc(
         writer.writeheader()
         writer.writerows(kept)
         for epoch in range(progress.epoch + 1, config.epochs + 1):
-            net.train()
-            losses = []
-            for _ in range(config.steps_per_epoch):
-                obs, actions = train.sample(config.batch_size, rng)
-                loss = net.loss(_tensor(obs), _tensor(actions))
-                optimizer.zero_grad()
-                loss.backward()  # type: ignore[no-untyped-call]  # torch leaves it untyped
-                optimizer.step()
-                losses.append(loss.item())
+            train_loss = _train_epoch(net, optimizer, train, config, rng)
             valid_loss, valid_mse = _validate(net, valid)
-            row = EpochLog(
-                epoch, float(np.mean(losses)), valid_loss, valid_mse, time.perf_counter() - started
-            )
+            row = EpochLog(epoch, train_loss, valid_loss, valid_mse, time.perf_counter() - started)
             report.epochs.append(row)
             if valid_loss is not None and valid_loss < best_valid:
                 best_valid = valid_loss
