@@ -182,6 +182,7 @@ COORD_MAY_IMPORT: dict[str, set[str]] = {
     "api": {"service", "guard", "db.tables"},
     "app": {"api", "service", "fleet", "db", "guard"},
     "cli": {"app", "service", "db", "guard"},
+    "node": {"fleet", "guard"},
 }
 # What coord takes from teleop: the config and the messages between processes (no simulator).
 COORD_TELEOP = {f"crowdteleop.teleop.{name}" for name in ("config", "messages", "protocol")}

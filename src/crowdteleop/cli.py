@@ -32,6 +32,10 @@ DEFERRED_GROUPS = {
         "Build, replay, summarize and export demonstration datasets.",
     ),
     "learn": ("crowdteleop.learn.cli:app", "Train policies on datasets and evaluate them."),
+    "node": (
+        "crowdteleop.coord.node:app",
+        "Join this machine to the Ray cluster that runs teleop servers.",
+    ),
 }
 
 

@@ -107,9 +107,10 @@ def _metric(client, name: str) -> float:
     return next(float(line.split()[-1]) for line in text.splitlines() if line.startswith(name))
 
 
-def test_metrics_show_demos_of_the_last_hour_and_the_spool_backlog(tmp_path):
-    """What an operator watches: successful demonstrations an hour (failed ones left out) and
-    the episodes the teleop servers' spools still hold for the object store (from /health)."""
+def test_metrics_show_demos_of_the_last_hour_and_the_spool_and_report_backlogs(tmp_path):
+    """What an operator watches: successful demonstrations an hour (failed ones left out), the
+    episodes the teleop servers' spools still hold for the object store, and those they could
+    not yet report here, with the servers that cannot reach us at all (from /health)."""
     launcher = FakeLauncher()
     config = coord_config(tmp_path, capacity=1, health_interval_s=0.2)
     with in_process_app(config, launcher) as client:
@@ -135,3 +136,11 @@ def test_metrics_show_demos_of_the_last_hour_and_the_spool_backlog(tmp_path):
         while _metric(client, "crowdteleop_spool_pending") != 3 and time.monotonic() < deadline:
             time.sleep(0.1)
         assert _metric(client, "crowdteleop_spool_pending") == 3
+        assert _metric(client, "crowdteleop_reports_pending") == 0
+        assert _metric(client, "crowdteleop_servers_unable_to_report") == 0
+        launcher.handles[sid].reports_pending = 2  # its server cannot reach us
+        launcher.handles[sid].reports_unreachable = True
+        while _metric(client, "crowdteleop_reports_pending") != 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert _metric(client, "crowdteleop_reports_pending") == 2
+        assert _metric(client, "crowdteleop_servers_unable_to_report") == 1

@@ -31,12 +31,22 @@ def _launcher(config: CoordConfig) -> Launcher:
     if config.ray is not None:
         from crowdteleop.coord.fleet.ray_launcher import RayLauncher
 
-        return RayLauncher(config.ray, config.teleop_host)
+        launcher = RayLauncher(config.ray, config.teleop_host)
+        shared = config.ray.shared_storage or _episode_storage(config) == "s3"
+        launcher.check(f"{config.report_base_url}/internal/episodes", episodes_shared=shared)
+        return launcher
     return LocalProcessLauncher(
         config.data_dir / "sessions",
         start_timeout_s=config.teleop_start_timeout_s,
         host=config.teleop_host,
     )
+
+
+def _episode_storage(config: CoordConfig) -> str:
+    """Where the teleop servers store episodes ("local" or "s3"): `teleop.recording.storage`."""
+    recording = config.teleop.get("recording")
+    storage = recording.get("storage") if isinstance(recording, dict) else None
+    return str(storage.get("kind", "local")) if isinstance(storage, dict) else "local"
 
 
 def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI:

@@ -1,7 +1,8 @@
 """Finished episodes, from the control loop to durable storage, the worker and the coordinator.
 
 Storing runs in tasks of its own, off the loop: the worker hears `saved` only once the store
-confirmed the file, then the coordinator gets an `EpisodeReport` (it counts demonstrations).
+confirmed the file, then the coordinator gets an `EpisodeReport` (it counts demonstrations)
+through the report outbox, which keeps it until the coordinator confirms it.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from crowdteleop.teleop.episode import FinishedEpisode
 from crowdteleop.teleop.messages import EpisodeReport
 from crowdteleop.teleop.peering import PeerSet
 from crowdteleop.teleop.protocol import EpisodeEnded, EpisodeSaved, ErrorEvent
-from crowdteleop.teleop.report import report_episode
+from crowdteleop.teleop.report import PendingReport, ReportOutbox
 from crowdteleop.teleop.session import TeleopSession
 from crowdteleop.teleop.telemetry import SessionTelemetry
 
@@ -31,6 +32,11 @@ class EpisodeArchive:
         self._telemetry = telemetry
         self._tasks: set[asyncio.Task[None]] = set()
         self.stored: list[str] = []
+        self.reports = ReportOutbox(on_unreachable=self._reports_unreachable)
+
+    def _reports_unreachable(self, url: str) -> None:
+        self._telemetry.errors["report_unreachable"] += 1
+        self._peers.broadcast(reports_delayed())
 
     def episode_ended(
         self,
@@ -94,9 +100,18 @@ class EpisodeArchive:
             telemetry=telemetry,
             device=finished.device,
         )
-        if not await report_episode(config.report_url, config.report_token, report):
-            self._telemetry.errors["report"] += 1
+        self.reports.put(PendingReport(config.report_url, config.report_token, report))
 
     async def close(self) -> None:
         if self._tasks:
             await asyncio.gather(*self._tasks, return_exceptions=True)
+        await self.reports.close()
+
+
+def reports_delayed() -> ErrorEvent:
+    """What a worker reads while the coordinator does not hear of their demonstrations."""
+    return ErrorEvent(
+        code="reports_delayed",
+        message="Your demonstrations are saved, but the study server cannot be reached to "
+        "count them. They are kept and will count as soon as it answers: you can go on.",
+    )

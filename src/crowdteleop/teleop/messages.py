@@ -172,7 +172,7 @@ def _check_json(value: Any, depth: int) -> None:
 
 class TeleopHealth(BaseModel):
     """A teleop server's ``GET /health``: the coordinator's liveness probe reads it (and sums
-    ``spool_pending`` into ``/metrics``)."""
+    ``spool_pending`` and ``reports_pending`` into ``/metrics``)."""
 
     model_config = ConfigDict(frozen=True)
 
@@ -185,4 +185,10 @@ class TeleopHealth(BaseModel):
     ticks: int
     spool_pending: int = Field(
         0, ge=0, description="episodes in the local spool waiting for the object store"
+    )
+    reports_pending: int = Field(
+        0, ge=0, description="stored episodes the coordinator has not yet confirmed hearing of"
+    )
+    reports_unreachable: bool = Field(
+        False, description="the last report (or the start's probe) found no coordinator"
     )

@@ -20,7 +20,7 @@ from aiohttp.typedefs import Handler
 from pydantic import ValidationError
 
 from crowdteleop.recording.wal_recovery import recover_orphans
-from crowdteleop.teleop.archive import EpisodeArchive
+from crowdteleop.teleop.archive import EpisodeArchive, reports_delayed
 from crowdteleop.teleop.assign import assigned_config
 from crowdteleop.teleop.auth import bearer_matches, token_matches
 from crowdteleop.teleop.broadcast import TickBroadcaster
@@ -77,6 +77,7 @@ class TeleopServer:
         self.session: TeleopSession
         self.dispatcher: Dispatcher
         self._loop_task: asyncio.Task[None] | None = None
+        self._background: set[asyncio.Task[bool]] = set()
         self.app = web.Application(
             client_max_size=MAX_OFFER_BYTES * 2, middlewares=[self._check_origin]
         )
@@ -99,10 +100,20 @@ class TeleopServer:
         )
         self.session = await TeleopSession.create(self.config)
         await self._store_recovered(recovered)
+        self._probe_reports()
         self.dispatcher = Dispatcher(
             self.session, self.telemetry, self.config.limits.max_input_age_ms, self.peers
         )
         self._loop_task = asyncio.create_task(self._run_loop(), name="control-loop")
+
+    def _probe_reports(self) -> None:
+        """Whether the coordinator answers where this server will report (a node that cannot
+        reach it says so now, not after the worker's first demonstration)."""
+        if self.config.report_url is not None:
+            probe = self.archive.reports.probe(self.config.report_url)
+            task = asyncio.create_task(probe, name="report-probe")
+            self._background.add(task)
+            task.add_done_callback(self._background.discard)
 
     async def _store_recovered(self, recovered: list[Path]) -> None:
         """A crashed or hung server's last episode, finalized from its write-ahead log: kept
@@ -186,6 +197,8 @@ class TeleopServer:
             successes=self.session.tracker.successes,
             ticks=self.clock.stats.ticks,
             spool_pending=await asyncio.to_thread(self.session.storage.pending_count),
+            reports_pending=self.archive.reports.pending,
+            reports_unreachable=self.archive.reports.unreachable is not None,
         )
         return web.json_response(health.model_dump(mode="json"))
 
@@ -212,6 +225,7 @@ class TeleopServer:
         # The session may be here because its previous server crashed or hung mid-episode.
         incoming = config.recording.directory / "incoming"
         await self._store_recovered(await asyncio.to_thread(recover_orphans, incoming))
+        self._probe_reports()
         return web.json_response({"session_id": config.session_id})
 
     async def handle_protocol(self, _request: web.Request) -> web.Response:
@@ -233,6 +247,8 @@ class TeleopServer:
 
     def _on_events_open(self, peer: Peer) -> None:
         self._send_hello(peer)
+        if self.archive.reports.unreachable is not None:
+            peer.send(reports_delayed())
         # A page that has just joined shows its video (or soon will): a stall that only the
         # other, hidden tab reported no longer holds the arm (as when a peer leaves).
         if self.session.board.set_video_stalled(worker_video_stalled(self.peers)):

@@ -22,6 +22,8 @@ class Slot:
     handle: TeleopHandle | None = None  # None while the server is starting
     healthy_at: float = field(default_factory=time.monotonic)  # its last good health probe
     spool_pending: int = 0  # episodes its spool holds for the object store, at that probe
+    reports_pending: int = 0  # stored episodes it has not yet told us of, at that probe
+    reports_unreachable: bool = False  # it could not reach us at its report address
 
 
 @dataclass(frozen=True)
@@ -34,6 +36,8 @@ class ServerState:
     alive: bool
     started_at: float
     spool_pending: int
+    reports_pending: int = 0
+    reports_unreachable: bool = False
 
 
 class TeleopPool:
@@ -124,6 +128,8 @@ class TeleopPool:
         if health is not None:
             slot.healthy_at = now
             slot.spool_pending = health.spool_pending
+            slot.reports_pending = health.reports_pending
+            slot.reports_unreachable = health.reports_unreachable
         return now - slot.healthy_at
 
     def servers(self) -> list[ServerState]:
@@ -135,6 +141,8 @@ class TeleopPool:
                 alive=slot.handle is not None and self.launcher.alive(slot.handle),
                 started_at=slot.reserved_at,
                 spool_pending=slot.spool_pending,
+                reports_pending=slot.reports_pending,
+                reports_unreachable=slot.reports_unreachable,
             )
             for session_id, slot in self.slots.items()
         ]

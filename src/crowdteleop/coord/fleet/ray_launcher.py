@@ -23,6 +23,8 @@ import asyncio
 import contextlib
 import logging
 import os
+import signal
+import threading
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,12 +32,14 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from crowdteleop.coord.fleet.cluster_checks import ClusterSetupError, TeleopNode, cluster_problems
 from crowdteleop.coord.fleet.launcher import (
     LaunchError,
     LocalHandle,
     LocalProcessLauncher,
     TeleopHandle,
 )
+from crowdteleop.coord.guard.tls import local_names
 from crowdteleop.teleop.config import TeleopConfig
 
 log = logging.getLogger(__name__)
@@ -63,6 +67,11 @@ class RayLauncherConfig(BaseModel):
     )
     node_work_dir: Path = Field(
         Path("/tmp/crowdteleop-ray"), description="where a node keeps its servers' configs/logs"
+    )
+    shared_storage: bool = Field(
+        False,
+        description="`data_dir` is on storage every node mounts at the same path (NFS): "
+        "episodes may then be stored locally on a cluster of several machines",
     )
     start_timeout_s: float = Field(180.0, gt=0, description="placement plus server start")
     watch_interval_s: float = Field(1.0, gt=0, description="how often each actor is asked")
@@ -127,12 +136,17 @@ class RayLauncher:
         self.config = config
         self.teleop_host = teleop_host
         if not ray.is_initialized():
+            # ray.init makes SIGTERM `sys.exit` (an abort, exit 134, in a running server):
+            # the server's own handler stays, so `systemctl stop` is a graceful stop.
+            on_sigterm = signal.getsignal(signal.SIGTERM)
             ray.init(
                 address=config.address,
                 namespace=config.namespace,
                 log_to_driver=False,
                 configure_logging=False,
             )
+            if on_sigterm is not None and threading.current_thread() is threading.main_thread():
+                signal.signal(signal.SIGTERM, on_sigterm)
         self._actor = _actor_class()
 
     def capacity(self) -> int:
@@ -141,6 +155,25 @@ class RayLauncher:
 
         resources: dict[str, float] = ray.cluster_resources()  # type: ignore[no-untyped-call]
         return int(resources.get(TELEOP_RESOURCE, 0))
+
+    def teleop_nodes(self) -> list[TeleopNode]:
+        """The live nodes offering teleop slots, by the address each announced."""
+        import ray
+
+        return [
+            TeleopNode(node["NodeManagerAddress"], int(node["Resources"][TELEOP_RESOURCE]))
+            for node in ray.nodes()  # type: ignore[no-untyped-call]
+            if node.get("Alive") and node.get("Resources", {}).get(TELEOP_RESOURCE)
+        ]
+
+    def check(self, report_url: str, episodes_shared: bool) -> None:
+        """Refuse to serve a campaign the cluster's nodes could not record (cluster_checks)."""
+        nodes = self.teleop_nodes()
+        problems = cluster_problems(nodes, report_url, episodes_shared, set(local_names()))
+        if problems:
+            raise ClusterSetupError("; and ".join(problems))
+        where = ", ".join(f"{n.address} ({n.slots})" for n in nodes) or "none yet"
+        log.info("Ray nodes with teleop slots: %s; reports go to %s", where, report_url)
 
     def request(self, sessions: int) -> None:
         """Ask the autoscaler for room for `sessions` at once (a no-op without one)."""

@@ -151,9 +151,9 @@ class Coordinator:
     async def close(self) -> None:
         """Stop the sweeps, then every teleop server (each stores its running episode); the
         sessions stay as they are in the database, and the next start gives them back their
-        places. With other replicas alive and servers that outlive this process (a
-        cluster's), the running sessions are left to them instead: their workers keep
-        driving."""
+        places. Servers that outlive this process (a cluster's) are left running instead, for
+        the other replicas or for this one's restart (`systemctl restart`, an upgrade): their
+        workers keep driving, and whoever starts next takes them over by name."""
         for task in [*self._sweeps, *self._launches.values()]:
             task.cancel()
         for task in [*self._sweeps, *self._launches.values()]:
@@ -163,9 +163,10 @@ class Coordinator:
         with contextlib.suppress(Exception):  # the database may be gone too
             others = await self._replicas.others_alive()
         await self._spares.close(hand_over=bool(others))
-        if others and isinstance(self._launcher, ReattachingLauncher):
+        if isinstance(self._launcher, ReattachingLauncher):
             servers = self._pool.servers()
-            log.info("leaving %d running sessions to %s", len(servers), sorted(others))
+            heirs = sorted(others) or "this coordinator's next start"
+            log.info("leaving %d running sessions to %s", len(servers), heirs)
             for server in servers:
                 if server.url is None:  # its launch was cancelled above
                     await self._sessions.requeue(

@@ -78,6 +78,18 @@ class CoordMetrics:
             "Episodes in the teleop servers' spools waiting for the object store (last probe)",
             registry=self.registry,
         )
+        self.reports_pending = Gauge(
+            "crowdteleop_reports_pending",
+            "Stored episodes the teleop servers could not yet report here (last probe): "
+            "their demonstrations are not counted until they are",
+            registry=self.registry,
+        )
+        self.servers_unable_to_report = Gauge(
+            "crowdteleop_servers_unable_to_report",
+            "Teleop servers that cannot reach this coordinator at their report address "
+            "(internal_url, docs/deploy.md)",
+            registry=self.registry,
+        )
 
     def refused(self, reason: Refusal) -> None:
         self.refusals.labels(reason=reason).inc()
