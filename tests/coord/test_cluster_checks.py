@@ -11,9 +11,7 @@ TWO_MACHINES = [TeleopNode("10.0.0.11", 8), TeleopNode("10.0.0.12", 8)]
 
 
 def test_a_loopback_report_address_is_refused_when_a_node_is_another_machine():
-    problems = cluster_problems(
-        TWO_MACHINES, "http://127.0.0.1:8000/internal/episodes", True, HERE
-    )
+    problems = cluster_problems(TWO_MACHINES, "http://127.0.0.1:8000/internal/episodes", True, HERE)
     assert len(problems) == 1
     assert "10.0.0.12" in problems[0] and "10.0.0.11" not in problems[0].split("would")[0]
     assert "`internal_url`" in problems[0] and "docs/deploy.md" in problems[0]

@@ -1,6 +1,6 @@
 """`crowdteleop node`: a machine checked and joined to the Ray cluster in one command, which
 installs nothing and starts nothing when something the node needs is missing (issue 30). The
-real `ray start` it runs is exercised by the Ray deployment test (tests/e2e/test_deploy_guide.py)."""
+`ray start` it runs is exercised by the guide's test (tests/coord/test_deploy_guide.py)."""
 
 from __future__ import annotations
 
