@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import contextlib
+import json
+import re
 import socket
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -13,6 +15,7 @@ import typer
 
 if TYPE_CHECKING:
     import uvicorn
+    from rich.console import Console
 
     from crowdteleop.coord.service.config import CoordConfig
 
@@ -28,14 +31,15 @@ def serve(
     database_url: Annotated[
         str | None,
         typer.Option(
-            help="sqlite:///FILE or postgresql://user@host/db [default: sqlite under --data-dir]"
+            help="sqlite:///FILE or postgresql://user@host/db [default: sqlite under data_dir]"
         ),
     ] = None,
-    data_dir: Annotated[Path, typer.Option(help="episodes, logs, database, certificate")] = Path(
-        "data"
-    ),
+    data_dir: Annotated[
+        Path | None, typer.Option(help="episodes, logs, database, certificate [default: data]")
+    ] = None,
     config: Annotated[
-        Path | None, typer.Option(help="CoordConfig as JSON/YAML (options override it)")
+        Path | None,
+        typer.Option(help="CoordConfig as JSON/YAML (environment and flags given override it)"),
     ] = None,
     campaign: Annotated[
         Path | None, typer.Option(help="campaign(s) as JSON/YAML (docs/coordination.md)")
@@ -56,18 +60,22 @@ def serve(
         float | None, typer.Option(help="seconds of silence before a session is abandoned")
     ] = None,
     ice_server: Annotated[list[str] | None, typer.Option(help="STUN/TURN URL (repeatable)")] = None,
+    print_config: Annotated[
+        bool, typer.Option(help="print every setting and where it came from, then exit")
+    ] = False,
 ) -> None:
-    """Run the coordination server: workers join, queue, and teleoperate their own robot."""
+    """Run the coordination server: workers join, queue, and teleoperate their own robot.
+
+    Settings: defaults < --config file < CROWDTELEOP_<FIELD> variables < flags given."""
     import asyncio
     import logging
-    import secrets
 
+    import yaml
     from pydantic import ValidationError
     from rich.console import Console
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s %(message)s")
     logging.getLogger("alembic").setLevel(logging.WARNING)  # a line per plugin, each start
-    err = Console(stderr=True)
     options = ServeOptions(
         host=host,
         port=port,
@@ -76,7 +84,7 @@ def serve(
         config=config,
         campaign=campaign,
         capacity=capacity,
-        admin_token=admin_token or secrets.token_urlsafe(24),
+        admin_token=admin_token,
         https=https or cert is not None,
         cert=cert,
         key=key,
@@ -85,85 +93,202 @@ def serve(
         ice_servers=ice_server or [],
     )
     try:
+        if print_config:
+            _print_config(options, Console())
+            return
         settings, sockets, tls = _settings(options)
-    except (ValidationError, ValueError, OSError) as exc:
-        err.print(f"[red]error:[/red] {exc}")
+    except (ValidationError, ValueError, OSError, yaml.YAMLError) as exc:
+        Console(stderr=True).print(f"[red]error:[/red] {exc}", markup=True, highlight=False)
         raise typer.Exit(2) from exc
     with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(_run(settings, sockets, tls, show_token=admin_token is None))
+        asyncio.run(_run(settings.config, sockets, tls, show_token=settings.token_made_up))
 
 
 @dataclass
 class ServeOptions:
-    host: str
-    port: int
-    database_url: str | None
-    data_dir: Path
-    config: Path | None
-    campaign: Path | None
-    capacity: int | None
-    admin_token: str
-    https: bool
-    cert: Path | None
-    key: Path | None
-    public_url: str | None
-    heartbeat_timeout: float | None
-    ice_servers: list[str]
+    """`serve`'s command line; None (or empty) where a flag was not given, so that it
+    overrides nothing."""
+
+    host: str = "127.0.0.1"
+    port: int = 8000
+    database_url: str | None = None
+    data_dir: Path | None = None
+    config: Path | None = None
+    campaign: Path | None = None
+    capacity: int | None = None
+    admin_token: str | None = None
+    https: bool = False
+    cert: Path | None = None
+    key: Path | None = None
+    public_url: str | None = None
+    heartbeat_timeout: float | None = None
+    ice_servers: list[str] = field(default_factory=list)
+
+    @property
+    def scheme(self) -> str:
+        return "https" if self.https else "http"
 
 
-def _settings(o: ServeOptions) -> tuple[CoordConfig, list[socket.socket], TlsFiles | None]:
-    """The config, the bound listening sockets (public, then internal if any), TLS files."""
-    from crowdteleop.coord.db.replicas import default_replica_name
-    from crowdteleop.coord.guard.http_limits import listening_socket
-    from crowdteleop.coord.guard.tls import local_names
+# The CoordConfig fields that a flag sets, and the flag.
+FLAGS = {
+    "database_url": "--database-url",
+    "data_dir": "--data-dir",
+    "campaigns": "--campaign",
+    "capacity": "--capacity",
+    "admin_token": "--admin-token",
+    "public_url": "--public-url",
+    "heartbeat_timeout_s": "--heartbeat-timeout",
+    "ice_servers": "--ice-server",
+}
+RANDOM_TOKEN = "default (random, printed at start)"
+
+
+@dataclass(frozen=True)
+class Layers:
+    """The fields that the config file, the environment and the flags given set, merged in
+    that order (a later layer wins), and where each one's value came from."""
+
+    values: dict[str, Any]
+    origins: dict[str, str]
+
+    @property
+    def loopback_reports(self) -> bool:
+        """Whether teleop servers report to this process's loopback address: not when a
+        layer names internal_url, nor when they run on a Ray cluster (other machines)."""
+        return "internal_url" not in self.values and self.values.get("ray") is None
+
+    @property
+    def data_dir(self) -> Path:
+        """The effective data_dir: the derived defaults and the certificate go under it."""
+        from crowdteleop.coord.service.config import CoordConfig
+
+        return Path(self.values.get("data_dir", CoordConfig.model_fields["data_dir"].default))
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The settings `serve` runs with, and where each field's value came from."""
+
+    config: CoordConfig
+    origins: dict[str, str]
+
+    @property
+    def token_made_up(self) -> bool:
+        """No layer gave an admin token: the random one is printed at start."""
+        return self.origins["admin_token"] == RANDOM_TOKEN
+
+
+def given_settings(o: ServeOptions) -> Layers:
+    """The fields set by the --config file, then CROWDTELEOP_<FIELD> variables, then flags."""
+    from crowdteleop.coord.service.config import ENV_PREFIX, environment_settings, file_settings
+
+    in_file = file_settings(o.config) if o.config is not None else {}
+    in_environment = environment_settings()
+    in_flags = _flag_fields(o)
+    origins = {name: f"file {o.config}" for name in in_file}
+    origins |= {name: f"environment {ENV_PREFIX}{name.upper()}" for name in in_environment}
+    origins |= {name: f"flag {FLAGS[name]}" for name in in_flags}
+    return Layers({**in_file, **in_environment, **in_flags}, origins)
+
+
+def _flag_fields(o: ServeOptions) -> dict[str, Any]:
+    """The CoordConfig fields the command line sets: a flag not given sets nothing."""
     from crowdteleop.coord.service.campaign import load_campaigns
+
+    fields = {
+        "database_url": o.database_url,
+        "data_dir": o.data_dir,
+        "campaigns": load_campaigns(o.campaign) if o.campaign is not None else None,
+        "capacity": o.capacity,
+        "admin_token": o.admin_token,
+        "public_url": o.public_url,
+        "heartbeat_timeout_s": o.heartbeat_timeout,
+        "ice_servers": o.ice_servers or None,
+    }
+    return {name: value for name, value in fields.items() if value is not None}
+
+
+def effective_settings(
+    o: ServeOptions, layers: Layers, port: int, report_port: int | None = None
+) -> Settings:
+    """The layers over defaults derived from their effective values and the listening `port`
+    (`report_port`: the loopback listener teleop servers report to under TLS)."""
+    from pydantic import ValidationError
+
     from crowdteleop.coord.service.config import CoordConfig
 
+    derived = _derived(o, layers, port, report_port)
+    origins = {name: "default" for name in CoordConfig.model_fields}
+    origins |= {name: origin for name, (_, origin) in derived.items()} | layers.origins
+    values = {name: value for name, (value, _) in derived.items()} | layers.values
+    try:
+        return Settings(CoordConfig.model_validate(values), origins)
+    except ValidationError as exc:
+        named = sorted({str(error["loc"][0]) for error in exc.errors() if error["loc"]})
+        given = [f"{name} from {layers.origins[name]}" for name in named if name in layers.origins]
+        raise ValueError(f"{exc}\n({'; '.join(given)})" if given else str(exc)) from exc
+
+
+def _derived(
+    o: ServeOptions, layers: Layers, port: int, report_port: int | None
+) -> dict[str, tuple[Any, str]]:
+    """Defaults that follow from other settings, each with its origin, for the fields that
+    no layer sets."""
+    import secrets
+
+    from crowdteleop.coord.db.replicas import default_replica_name
+
+    shown = _shown_host(o.host)
+    local = "127.0.0.1" if o.host in WILDCARD + LOOPBACK else shown
+    internal = f"http://{local}:{port}"
+    if report_port is not None:  # TLS: a plain-HTTP listener on loopback
+        internal = f"http://127.0.0.1:{report_port}"
+    database = f"sqlite:///{layers.data_dir / 'coord.sqlite3'}"
+    derived = {
+        "database_url": (database, "default (under data_dir)"),
+        "public_url": (f"{o.scheme}://{shown}:{port}", "default (from --host, --port)"),
+        "admin_token": (secrets.token_urlsafe(24), RANDOM_TOKEN),
+        "replica_name": (default_replica_name(port), "default (host name:port)"),
+        # On a Ray cluster teleop servers run on other machines: no loopback, so they report
+        # through public_url (CoordConfig.report_base_url).
+        "internal_url": (internal, "default (this process's own address)")
+        if layers.loopback_reports
+        else (None, "default (none with ray: public_url)"),
+    }
+    return {name: value for name, value in derived.items() if name not in layers.values}
+
+
+def _settings(o: ServeOptions) -> tuple[Settings, list[socket.socket], TlsFiles | None]:
+    """The settings, the bound listening sockets (public, then internal if any), TLS files."""
+    from crowdteleop.coord.guard.http_limits import listening_socket
+
+    layers = given_settings(o)  # a bad file or variable is named before anything is bound
     main = listening_socket(o.host, o.port)
-    bound = main.getsockname()[1]
-    scheme = "https" if o.https else "http"
-    shown = o.host
-    if o.host in WILDCARD:
+    sockets = [main]
+    tls = report_port = None
+    if o.https:
+        tls = _tls_files(o, layers.data_dir)
+        if layers.loopback_reports:
+            # Teleop servers report over plain HTTP on loopback (no certificate to trust).
+            side = listening_socket("127.0.0.1", 0)
+            report_port = side.getsockname()[1]
+            sockets.append(side)
+    settings = effective_settings(o, layers, main.getsockname()[1], report_port)
+    return settings, sockets, tls
+
+
+def _shown_host(host: str) -> str:
+    """The host name in URLs: a wildcard address shows as this machine's first LAN address."""
+    from crowdteleop.coord.guard.tls import local_names
+
+    shown = host
+    if host in WILDCARD:
         lan = [n for n in local_names() if n.count(".") == 3 and not n.startswith("127.")]
         shown = lan[0] if lan else "127.0.0.1"
-    shown = f"[{shown}]" if ":" in shown else shown
-    sockets = [main]
-    tls = None
-    internal_host = "127.0.0.1" if o.host in WILDCARD + LOOPBACK else shown
-    internal = f"http://{internal_host}:{bound}"
-    if o.https:
-        tls = _tls_files(o)
-        # Teleop servers report over plain HTTP on loopback (no certificate to trust).
-        side = listening_socket("127.0.0.1", 0)
-        internal = f"http://127.0.0.1:{side.getsockname()[1]}"
-        sockets.append(side)
-    fields: dict[str, Any] = {
-        "admin_token": o.admin_token,
-        "data_dir": o.data_dir,
-        "public_url": o.public_url or f"{scheme}://{shown}:{bound}",
-    }
-    # A config file may say otherwise (replicas behind a load balancer report through it).
-    defaults = {
-        "internal_url": internal,
-        "replica_name": default_replica_name(bound),
-        "database_url": f"sqlite:///{o.data_dir / 'coord.sqlite3'}",
-    }
-    if o.database_url is not None:
-        fields["database_url"] = o.database_url
-    if o.campaign is not None:
-        fields["campaigns"] = load_campaigns(o.campaign)
-    if o.capacity is not None:
-        fields["capacity"] = o.capacity
-    if o.heartbeat_timeout is not None:
-        fields["heartbeat_timeout_s"] = o.heartbeat_timeout
-    if o.ice_servers:
-        fields["ice_servers"] = o.ice_servers
-    if o.config is not None:
-        return CoordConfig.from_file(o.config, defaults, **fields), sockets, tls
-    return CoordConfig.model_validate({**defaults, **fields}), sockets, tls
+    return f"[{shown}]" if ":" in shown else shown
 
 
-def _tls_files(o: ServeOptions) -> TlsFiles:
+def _tls_files(o: ServeOptions, data_dir: Path) -> TlsFiles:
     """--cert and --key, or a self-signed certificate for every name this machine answers to."""
     from crowdteleop.coord.guard.private import private_dir
     from crowdteleop.coord.guard.tls import local_names, self_signed
@@ -173,8 +298,52 @@ def _tls_files(o: ServeOptions) -> TlsFiles:
     if o.cert is not None or o.key is not None:
         raise ValueError("--cert and --key go together")
     names = set(local_names()) | ({o.host} if o.host not in WILDCARD else set())
-    private_dir(o.data_dir)  # before its tls/ folder, which would give it usual modes
-    return self_signed(o.data_dir / "tls", sorted(names))
+    private_dir(data_dir)  # before its tls/ folder, which would give it usual modes
+    return self_signed(data_dir / "tls", sorted(names))
+
+
+# Fields named like these hold secrets (admin_token, turn.secret, ice_servers[].credential).
+SECRET_NAME = re.compile(r"secret|password|token|credential", re.IGNORECASE)
+URL_PASSWORD = re.compile(r"(://[^/:@\s]+:)[^/@\s]+@")  # postgresql://user:PASSWORD@host
+
+
+def _print_config(o: ServeOptions, console: Console) -> None:
+    """Every CoordConfig field's effective value and origin, secrets masked; nothing bound:
+    the URLs show the configured port (0: one picked at start)."""
+    from rich import box
+    from rich.console import Console
+    from rich.table import Table
+    from rich.text import Text
+
+    layers = given_settings(o)
+    settings = effective_settings(o, layers, o.port, 0 if o.https else None)
+    table = Table("setting", "from", box=box.SIMPLE_HEAD)
+    table.add_column("value", overflow="fold")  # a URL or a path whole, over several lines
+    for name, value in settings.config.model_dump(mode="json").items():
+        table.add_row(name, settings.origins[name], Text(_shown_value(_masked(name, value))))
+    if not console.is_terminal:  # piped: whole values, a line each, for grep and tests
+        console = Console(width=10_000)
+    console.print(f"listening on {o.host}:{o.port} (--host, --port)", highlight=False)
+    console.print(table)
+
+
+def _masked(name: str, value: Any) -> Any:
+    """`value` with its secrets replaced: fields named like one, and passwords in URLs."""
+    if SECRET_NAME.search(name):
+        return value if value is None else "***"
+    if isinstance(value, dict):
+        return {key: _masked(key, item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_masked(name, item) for item in value]
+    if isinstance(value, str):
+        return URL_PASSWORD.sub(r"\1***@", value)
+    return value
+
+
+def _shown_value(value: Any) -> str:
+    if isinstance(value, str):
+        return value
+    return json.dumps(value)
 
 
 async def _run(

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
+import yaml
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from crowdteleop.coord.fleet.ray_launcher import RayLauncherConfig
@@ -14,6 +15,12 @@ from crowdteleop.coord.guard.security import ADMIN_TOKEN_MIN_BITS, estimated_ent
 from crowdteleop.coord.service.campaign import CampaignConfig, read_structured
 from crowdteleop.recording.metadata import RegionName
 from crowdteleop.teleop.messages import IceServer, IceTransportPolicy
+
+if TYPE_CHECKING:
+    from pydantic_settings import BaseSettings
+
+# CROWDTELEOP_<FIELD> sets a CoordConfig field (`crowdteleop serve`, docs/coordination.md).
+ENV_PREFIX = "CROWDTELEOP_"
 
 
 class AdmissionConfig(BaseModel):
@@ -202,10 +209,31 @@ class CoordConfig(BaseModel):
     def report_base_url(self) -> str:
         return (self.internal_url or self.public_url).rstrip("/")
 
-    @classmethod
-    def from_file(
-        cls, path: Path, defaults: dict[str, Any] | None = None, **overrides: Any
-    ) -> CoordConfig:
-        """The file's settings over `defaults`, under `overrides`."""
+
+def file_settings(path: Path) -> dict[str, Any]:
+    """The CoordConfig fields a JSON or YAML file sets, as written: they are validated once,
+    with the other layers (`crowdteleop serve`), so a field may come from anywhere."""
+    try:
         data = read_structured(path) or {}
-        return cls.model_validate({**(defaults or {}), **data, **overrides})
+    except (ValueError, yaml.YAMLError) as exc:  # JSONDecodeError is a ValueError
+        raise ValueError(f"{path} is not valid JSON or YAML: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a mapping of CoordConfig fields expected, got {data!r:.60}")
+    return data
+
+
+def environment_settings() -> dict[str, Any]:
+    """The CoordConfig fields set as `CROWDTELEOP_<FIELD>` variables (any case; an empty one
+    counts as unset), models, lists and dicts as JSON.
+
+    pydantic-settings' source does the reading and the JSON decoding as for a BaseSettings;
+    it needs only the model's fields, so CoordConfig stays a plain model that tests build."""
+    from pydantic_settings import EnvSettingsSource
+
+    source = EnvSettingsSource(
+        cast("type[BaseSettings]", CoordConfig),
+        case_sensitive=False,
+        env_prefix=ENV_PREFIX,
+        env_ignore_empty=True,
+    )
+    return source()
