@@ -18,6 +18,7 @@ if [ "$profile" = "test" ]; then
     coturn       # TURN: a session relayed through a real TURN server (relay-only ICE)
     iperf3       # the link emulator's rate and loss, measured by a tool that is not ours
     haproxy      # a real load balancer in front of two coordinator replicas
+    caddy        # the reverse proxy of docs/deploy.md, which its test runs as the guide says
   )
   # The pages' JS unit tests run on node's own test runner; any node >= 18 will do.
   command -v node >/dev/null || packages+=(nodejs)

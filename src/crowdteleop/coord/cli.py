@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import re
+import signal
 import socket
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -100,8 +101,20 @@ def serve(
     except (ValidationError, ValueError, OSError, yaml.YAMLError) as exc:
         Console(stderr=True).print(f"[red]error:[/red] {exc}", markup=True, highlight=False)
         raise typer.Exit(2) from exc
-    with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(_run(settings.config, sockets, tls, show_token=settings.token_made_up))
+    # SIGTERM (`systemctl stop`) stops as Ctrl-C does: uvicorn's graceful shutdown, then the
+    # signal it raises again ends here as KeyboardInterrupt: exit 0, not a death by signal.
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    started = True
+    try:
+        with contextlib.suppress(KeyboardInterrupt):
+            started = asyncio.run(
+                _run(settings.config, sockets, tls, show_token=settings.token_made_up)
+            )
+    except SystemExit as exc:  # uvicorn's, when the app's startup (its lifespan) failed
+        started = exc.code in (0, None)
+    if not started:
+        Console(stderr=True).print("[red]error:[/red] the coordinator did not start (see above)")
+        raise typer.Exit(3)
 
 
 @dataclass
@@ -348,7 +361,8 @@ def _shown_value(value: Any) -> str:
 
 async def _run(
     settings: CoordConfig, sockets: list[socket.socket], tls: TlsFiles | None, show_token: bool
-) -> None:
+) -> bool:
+    """Serve until stopped; whether the server started at all (its lifespan may refuse)."""
     import asyncio
 
     import uvicorn
@@ -393,6 +407,7 @@ async def _run(
                 side.should_exit = True
 
     await asyncio.gather(main_then_side(), *servers[1:], announce())
+    return bool(main.started)
 
 
 class _QuietServer:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 from typing import Any, TypeVar
 from urllib.parse import parse_qs, urlsplit
 
@@ -25,6 +26,7 @@ from crowdteleop.teleop.messages import OfferAnswer
 
 Model = TypeVar("Model", bound=BaseModel)
 HEARTBEAT_S = 2.0
+GATEWAY_ERRORS = (502, 503, 504)  # a reverse proxy whose coordinator is away (restarting)
 RECONNECT_S = 60.0  # as teleop.js: well inside the coordinator's 30 s heartbeat timeout
 
 
@@ -34,6 +36,15 @@ class CoordinatorRefusedError(ConnectionError):
     def __init__(self, status: int, code: str, message: str) -> None:
         super().__init__(f"{status} {code}: {message}")
         self.status, self.code = status, code
+
+
+class CoordinatorUnreachableError(ConnectionError):
+    """A reverse proxy answered for the coordinator: it is away (restarting)."""
+
+
+def _error_body(payload: Any) -> bool:
+    """Whether `payload` is the coordinator's own `ErrorBody`, not a proxy's page."""
+    return isinstance(payload, dict) and "error" in payload
 
 
 class WorkerApi:
@@ -53,13 +64,14 @@ class WorkerApi:
         body: BaseModel | None = None,
         token: str | None = None,
     ) -> Model:
-        """One call; while the coordinator cannot be reached (restarting), retried for up to
-        RECONNECT_S, as the page keeps heart-beating through an outage."""
+        """One call; while the coordinator cannot be reached (restarting: no connection, or
+        its reverse proxy's 502/503/504), retried for up to RECONNECT_S, as the page keeps
+        heart-beating through an outage."""
         deadline = asyncio.get_running_loop().time() + RECONNECT_S
         while True:
             try:
                 return await self._call_once(method, path, reply, body, token)
-            except aiohttp.ClientConnectionError:
+            except (aiohttp.ClientConnectionError, CoordinatorUnreachableError):
                 if not self.token or asyncio.get_running_loop().time() > deadline:
                     raise  # never joined: nothing to come back to
                 await asyncio.sleep(1.0)
@@ -80,7 +92,14 @@ class WorkerApi:
         async with self.http.request(
             method, f"{self.base_url}{path}", data=data, headers=headers
         ) as response:
-            payload: Any = await response.json(content_type=None)
+            text = await response.text()
+            try:
+                payload: Any = json.loads(text)
+            except ValueError:
+                payload = None
+            if response.status in GATEWAY_ERRORS and not _error_body(payload):
+                # The proxy answered for a coordinator that is away (its own 503s say why).
+                raise CoordinatorUnreachableError(f"{path}: {response.status} {text[:100]}")
             if response.status != 200:
                 error = payload if isinstance(payload, dict) else {}
                 raise CoordinatorRefusedError(
