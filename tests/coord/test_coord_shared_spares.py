@@ -108,7 +108,10 @@ async def scenario(tmp_path: Path, database: str) -> None:
         for coordinator, store in running:
             await coordinator.close()
             await store.close()
-    assert not any(h.alive for h in cluster.handles.values()), "the last replica stops them"
+    # The last replica to stop stops its spares, and leaves the worker's server running for
+    # its next start, which takes it back (a cluster's servers outlive it: issue 30).
+    alive = {name for name, handle in cluster.handles.items() if handle.alive}
+    assert alive == {spare_id}, "the last replica stops its spares, not a worker's server"
 
 
 def test_replicas_keep_one_spare_together_and_any_of_them_hands_it_out(tmp_path, shared_database):

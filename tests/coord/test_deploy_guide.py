@@ -62,6 +62,8 @@ def test_a_ray_campaign_deployed_as_the_guide_says_counts_every_demonstration_on
     assert "--config" in results["command"] and "--admin-token" not in results["command"]
     assert results["loopback_exit"] == 3, "a report address on its loopback: refused at start"
     assert "10.213.1.2" in results["loopback_said"][0], "naming the node that could not report"
+    assert results["local_exit"] == 3, "episodes on each machine's own disk: refused at start"
+    assert results["local_said"], "saying to use S3 or a shared folder"
     assert results["capacity"] == 2 * 2 - 1, "both nodes' slots, less the spare"
     assert results["hosts"] == ["10.213.1.1", "10.213.1.2"], "sessions ran on both machines"
     assert results["sigterm_exit"] == 0, "systemctl stop is a graceful stop"

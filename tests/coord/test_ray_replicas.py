@@ -39,6 +39,7 @@ def test_replicas_share_one_queue_and_a_stopped_one_loses_no_session(tmp_path, s
         f"most spares: {results['most_spares']}; capacities {results['capacities']}; sessions "
         f"given the spare: {results['spare_born']}, {results['moved_spare_born']} of them moved"
     )
+    assert results["replica_exit"] == 0, "Ctrl-C on a Ray coordinator: a graceful stop"
     assert results["capacities"] == [3, 3], "four slots less the one spare, on both replicas"
     assert results["most_held"] == 3, "never past the slots the spare leaves"
     assert results["most_spares"] == 1, "one spare for both replicas, not one each"
