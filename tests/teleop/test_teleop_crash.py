@@ -87,3 +87,12 @@ def test_sigterm_mid_episode_stores_the_episode_and_exits(tmp_path):
     assert len(stored) == 1
     episode = read_episode(stored[0])
     assert episode.outcome == "disconnect" and episode.steps >= 20
+
+
+def test_a_server_whose_parent_blocked_sigint_still_stops_on_it(tmp_path):
+    """A Ray actor starts its teleop server from a thread with SIGINT blocked, and a child
+    inherits the mask: the launcher's SIGINT (store the episode, then exit) must still work."""
+    with teleop_server(tmp_path, blocked={signal.SIGINT}) as server:
+        server.process.send_signal(signal.SIGINT)
+        exit_code = server.process.wait(15)
+    assert exit_code == 0, server.log()[-2000:]

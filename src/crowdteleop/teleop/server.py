@@ -326,10 +326,13 @@ async def serve(config: TeleopConfig, host: str = "127.0.0.1", port: int = 0) ->
     loop = asyncio.get_running_loop()
     # SIGTERM (process managers) and SIGINT stop the server the same way: the running episode
     # is finalized and stored. Installed explicitly because a process started in the
-    # background of a script inherits SIGINT ignored.
+    # background of a script inherits SIGINT ignored, and unblocked because one started by a
+    # Ray actor inherits SIGINT blocked (the mask of Ray's event-loop thread).
     handled = _STOP_SIGNALS if _main_thread() else ()
     for sig in handled:
         loop.add_signal_handler(sig, stop.set)
+    if handled:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, handled)
     try:
         await stop.wait()
     finally:
