@@ -57,6 +57,11 @@ def test_a_ray_campaign_deployed_as_the_guide_says_counts_every_demonstration_on
         f"per session when SIGKILLed: {results['demos_done_at_kill']}; "
         f"{len(results['stored'])} episodes stored, {len(results['counted'])} reported"
     )
+    print(
+        f"start to READY: {', '.join(f'{s:.1f}' for s in results['ready_s'])} s; "
+        f"{results['uncounted_at_restart']} demonstrations stored while it was down, all "
+        f"counted {results['reports_landed_s']:.1f} s after it was READY again"
+    )
     for report in results["reports"]:
         print(f"a worker: code {report['code']}, {report['outcomes']}, error {report['error']}")
     assert "--config" in results["command"] and "--admin-token" not in results["command"]
