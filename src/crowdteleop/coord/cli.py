@@ -68,12 +68,7 @@ def serve(
     """Run the coordination server: workers join, queue, and teleoperate their own robot.
 
     Settings: defaults < --config file < CROWDTELEOP_<FIELD> variables < flags given."""
-    import asyncio
     import logging
-
-    import yaml
-    from pydantic import ValidationError
-    from rich.console import Console
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s %(message)s")
     logging.getLogger("alembic").setLevel(logging.WARNING)  # a line per plugin, each start
@@ -93,14 +88,38 @@ def serve(
         heartbeat_timeout=heartbeat_timeout,
         ice_servers=ice_server or [],
     )
+    prepared = _prepared(options, print_config)
+    if prepared is not None:
+        _serve_until_stopped(*prepared)
+
+
+def _prepared(
+    options: ServeOptions, print_config: bool
+) -> tuple[Settings, list[socket.socket], TlsFiles | None] | None:
+    """The settings, the bound sockets and the TLS files; None after `--print-config`. Bad
+    settings exit 2, saying why."""
+    import yaml
+    from pydantic import ValidationError
+    from rich.console import Console
+
     try:
         if print_config:
             _print_config(options, Console())
-            return
-        settings, sockets, tls = _settings(options)
+            return None
+        return _settings(options)
     except (ValidationError, ValueError, OSError, yaml.YAMLError) as exc:
         Console(stderr=True).print(f"[red]error:[/red] {exc}", markup=True, highlight=False)
         raise typer.Exit(2) from exc
+
+
+def _serve_until_stopped(
+    settings: Settings, sockets: list[socket.socket], tls: TlsFiles | None
+) -> None:
+    """Serve until SIGTERM or Ctrl-C (exit 0); a server that could not start exits 3."""
+    import asyncio
+
+    from rich.console import Console
+
     # SIGTERM (`systemctl stop`) stops as Ctrl-C does: uvicorn's graceful shutdown, then the
     # signal it raises again ends here as KeyboardInterrupt: exit 0, not a death by signal.
     signal.signal(signal.SIGTERM, signal.default_int_handler)
