@@ -21,6 +21,14 @@ DeviceKind = Literal[WorkerDevice, "bot"]
 """What sends device commands: a person's device, or a scripted bot."""
 DEVICE_KINDS: tuple[DeviceKind, ...] = (*WORKER_DEVICES, "bot")
 
+ClutchState = Literal[
+    "no_driver", "released", "driving", "waiting_for_pose", "video_stalled", "press_again"
+]
+"""Whether the arm follows the driving device, and if not why (`teleop/clutch.py`): nobody
+drives; the clutch is let go; it drives; pressed before the device sent a pose; the worker's
+video stopped; the picture is back but the press is from before it stopped (let go, press)."""
+CLUTCH_STATES: tuple[ClutchState, ...] = get_args(ClutchState)
+
 ControllerName = Literal["ik-velocity", "osc"]
 """The control law turning a desired end-effector pose into simulation actions."""
 CONTROLLERS: tuple[ControllerName, ...] = get_args(ControllerName)

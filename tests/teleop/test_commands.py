@@ -88,3 +88,24 @@ def test_letting_go_during_a_stall_counts_as_the_release():
     board.set_video_stalled(False)
     board.apply_pose("p", _pose(3, engaged=True))
     assert board.command().engaged
+
+
+def test_a_device_taking_over_after_a_stall_drives_with_its_first_press():
+    """A keyboard (its clutch on by default) drove through a stall and never let go; the phone
+    that takes over presses once and drives."""
+    board = CommandBoard()
+    board.apply_pose("tab", _pose(1, device="keyboard", engaged=True))
+    board.command()
+    board.set_video_stalled(True)
+    board.apply_pose("tab", _pose(2, device="keyboard", engaged=True))
+    board.set_video_stalled(False)
+    assert board.clutch.state == "press_again"
+    board.take_control("handset", "phone")
+    assert board.clutch.state == "released"
+    board.apply_event(
+        "handset", ClutchEvent(device="phone", seq=1, client_time_ms=1.0, engaged=True)
+    )
+    assert board.clutch.state == "waiting_for_pose", "a press before any pose waits for one"
+    board.apply_pose("handset", _pose(2, device="phone", engaged=True))
+    board.command()  # the step that shows the hand-over's release
+    assert board.command().engaged and board.clutch.state == "driving"

@@ -136,6 +136,7 @@ def status_of(session: TeleopSession, result: TickResult) -> TaskStatus:
         controlling_device=driver.device if driver else None,
         successes=tracker.successes,
         video_stalled=session.board.video_stalled,
+        clutch=session.board.clutch.state,
         practice=session.practice.stage,
         practice_left_s=round(session.practice.left_s, 1),
         practice_reached=session.practice.reached,

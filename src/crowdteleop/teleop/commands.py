@@ -9,6 +9,7 @@ import numpy.typing as npt
 
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.recording.episode_file import CommandRecord
+from crowdteleop.teleop.clutch import Clutch
 from crowdteleop.teleop.protocol import ClutchEvent, GripperEvent, PoseCommand
 from crowdteleop.vocab import DeviceKind
 
@@ -41,17 +42,22 @@ class CommandBoard:
     quaternion: npt.NDArray[np.float64] = field(
         default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0])
     )
-    engaged: bool = False
+    clutch: Clutch = field(default_factory=Clutch)
     gripper_closed: bool = False
     last_seq: int = -1
     last_client_time_ms: float = 0.0
     has_pose: bool = False
     # Set when control changes hands; the next `command` shows the clutch released once.
     release_pending: bool = False
-    # The worker's video stopped: the clutch stays released until the device lets go (a
-    # message with the clutch open) and presses again, so nobody drives blind.
-    video_stalled: bool = False
-    await_release: bool = False
+
+    @property
+    def engaged(self) -> bool:
+        """Whether the arm follows the device now (`clutch.py` says when)."""
+        return self.clutch.engaged
+
+    @property
+    def video_stalled(self) -> bool:
+        return self.clutch.video_stalled
 
     def take_control(self, peer_id: str, device: DeviceKind) -> bool:
         """Make (peer, device) the driver; returns whether anything changed."""
@@ -59,7 +65,7 @@ class CommandBoard:
         if new == self.driver:
             return False
         self.driver = new
-        self.engaged = False  # a new device starts with the clutch released
+        self.clutch.switch()  # a new device starts with the clutch released
         self.last_seq = -1
         self.has_pose = False
         # ... and the control loop must see that release: the new device's first engaged pose
@@ -73,32 +79,22 @@ class CommandBoard:
         if self.driver is None or self.driver.peer_id != peer_id:
             return False
         self.driver = None
-        self.engaged = False
+        self.clutch.leave()
         self.last_seq = -1
         self.has_pose = False
         return True
 
     def set_video_stalled(self, stalled: bool) -> bool:
         """The worker's page saw its video stop (or resume); returns whether that changed."""
-        if stalled == self.video_stalled:
+        if stalled == self.clutch.video_stalled:
             return False
-        self.video_stalled = stalled
-        if stalled:
-            self.engaged = False
-            self.await_release = True
+        self.clutch.stall(stalled)
         return True
 
-    def _engage(self, wanted: bool) -> bool:
-        """The clutch a device asks for: never while the video is stalled, nor after a stall
-        until the device has let go once."""
-        if not wanted:
-            self.await_release = False
-        return wanted and not self.await_release and not self.video_stalled
-
     def release_clutch(self) -> None:
-        """After a reset the arm waits for a fresh press: a clutch still held from the last
-        episode would anchor the new scene to a stale device pose."""
-        self.engaged = False
+        """After a reset the arm stops following until the device's next message: a clutch
+        anchored in the last episode would pull the new scene to a stale device pose."""
+        self.clutch.scene_reset()
 
     def _check(self, peer_id: str, device: DeviceKind, seq: int) -> bool:
         """False for stale messages; raises NotInControlError for other devices."""
@@ -120,10 +116,10 @@ class CommandBoard:
             return False
         self.position = np.array(message.position, dtype=float)
         self.quaternion = np.array(message.quaternion, dtype=float)
-        self.engaged = self._engage(message.engaged)
+        self.has_pose = True
+        self.clutch.device(message.engaged, has_pose=True)
         self.gripper_closed = message.gripper
         self.last_client_time_ms = message.client_time_ms
-        self.has_pose = True
         return True
 
     def apply_event(self, peer_id: str, message: ClutchEvent | GripperEvent) -> bool:
@@ -131,7 +127,7 @@ class CommandBoard:
             return False
         if isinstance(message, ClutchEvent):
             # Engaging needs a pose to anchor on; a clutch press before any pose waits for one.
-            self.engaged = self._engage(message.engaged) and self.has_pose
+            self.clutch.device(message.engaged, self.has_pose)
         else:
             self.gripper_closed = message.closed
         self.last_client_time_ms = message.client_time_ms

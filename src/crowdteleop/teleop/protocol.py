@@ -13,7 +13,7 @@ from typing import Annotated, Any, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
-from crowdteleop.vocab import DeviceKind, Outcome
+from crowdteleop.vocab import ClutchState, DeviceKind, Outcome
 
 PROTOCOL_VERSION: Final = 1
 
@@ -224,6 +224,10 @@ class TaskStatus(_Message):
     successes: int
     end_effector: tuple[float, float, float]
     video_stalled: bool = Field(False, description="the worker's video stopped: clutch released")
+    clutch: ClutchState = Field(
+        "no_driver",
+        description="whether the arm follows the driving device, and if not why (teleop/clutch.py)",
+    )
     practice: PracticeStage = Field(
         "off",
         description="the practice round before episode 1 (nothing recorded): off, running, done",

@@ -8,6 +8,7 @@
 import { call } from "./api.js";
 import { cameraSupported } from "./camera.js";
 import { cameraOrientation, startCameraMode } from "./camera_mode.js";
+import { CLUTCH_TEXT, CLUTCH_WORD } from "./clutch.js";
 import { quatMultiply } from "./devices.js";
 import { PhonePoseFilter } from "./pose_filter.js";
 import { Protocol } from "./protocol.js";
@@ -142,6 +143,9 @@ async function enableXR() {
   };
 }
 
+const AR_STARTING = "AR tracking is still starting: move the phone slowly over a well-lit, "
+  + "textured surface until it says 6-DoF, then press the hold button.";
+
 const TRACKING_LOST = "The phone lost track of where it is, so the robot holds still. Point "
   + "the camera at a well-lit, textured surface (not a blank wall), then let go of the hold "
   + "button and press it again.";
@@ -214,7 +218,10 @@ async function startXR() {
 function setClutch(engaged) {
   const c = phone.connection;
   if (!c || phone.engaged === engaged) return;
-  if (engaged && phone.xr && phone.tracking !== "tracking") return;
+  if (engaged && phone.xr && phone.tracking !== "tracking") {  // say why nothing moves
+    banner("error", phone.tracking === "starting" ? AR_STARTING : TRACKING_LOST);
+    return;
+  }
   const driver = c.state.status && c.state.status.controlling_device;
   if (engaged && driver !== "phone") c.takeControl();
   phone.engaged = engaged;
@@ -281,6 +288,10 @@ function wireControls() {
   });
   c.addEventListener("status", ({ detail }) => {
     $("driver").textContent = detail.controlling_device || "nobody";
+    $("clutch-state").textContent = CLUTCH_WORD[detail.clutch] || "–";
+    const mine = detail.controlling_device === "phone";
+    if (mine && detail.clutch === "press_again") banner("info", CLUTCH_TEXT.press_again);
+    else if ($("banner").textContent === CLUTCH_TEXT.press_again) $("banner").className = "banner";
     if (detail.video_stalled) {
       phone.stallShown = true;
       banner("error", "The video on your computer stopped, so the robot holds still. When it is "

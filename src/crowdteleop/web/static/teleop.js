@@ -1,6 +1,7 @@
 // The worker's teleop page: get a robot (or a place in line), watch it, drive it.
 
 import { call, worker } from "./api.js";
+import { CLUTCH_TEXT, CLUTCH_WORD } from "./clutch.js";
 import { GamepadDevice, KEY_LEGEND, KeyboardDevice, SpaceMouseDevice, VRControllerDevice } from "./devices.js";
 import { watchPractice } from "./practice.js";
 import { Protocol } from "./protocol.js";
@@ -169,6 +170,7 @@ function controlLoop() {
     if (!page.device || page.external || !page.connection) return;
     const command = page.device.update(dt);
     if (!command) return;
+    letGoWhenIdle(command);
     const key = JSON.stringify(command);
     const busy = page.device.active === undefined || page.device.active;
     if (busy || key !== page.lastCommand) {
@@ -188,12 +190,31 @@ function controlLoop() {
   }, 1000 / SEND_HZ);
 }
 
+// A keyboard or 3D mouse has no button held down: its clutch is on until C (or the right
+// button) turns it off. When the server asks for a fresh press (the video paused while it
+// drove), an idle keyboard lets go for it, so the next key drives.
+function letGoWhenIdle(command) {
+  const status = page.connection.state.status;
+  const toggled = page.device.kind === "keyboard" || page.device.kind === "spacemouse";
+  if (status && status.clutch === "press_again" && toggled && !page.device.active) command.engaged = false;
+}
+
+// The clutch's state in the status row, and a banner while it waits for the worker.
+function showClutch(status) {
+  $("clutch-state").textContent = CLUTCH_WORD[status.clutch] || "–";
+  $("clutch-state").title = CLUTCH_TEXT[status.clutch] || "";
+  const waiting = status.clutch === "press_again" && page.device && page.device.kind !== "keyboard";
+  if (waiting) banner("info", CLUTCH_TEXT.press_again);
+  else if ($("banner").textContent === CLUTCH_TEXT.press_again) clearBanner();
+}
+
 function showStatus() {
   const c = page.connection;
   c.addEventListener("status", ({ detail: s }) => {
     $("timer").textContent = `${formatSeconds(s.elapsed_s)} / ${formatSeconds(s.time_limit_s)}`;
     $("stage").textContent = s.message || s.stage || "–";
     $("driver").textContent = s.controlling_device || "nobody";
+    showClutch(s);
     // The QR code has done its job: the phone camera's marker moves up into view.
     document.body.classList.toggle("phone-drives", s.controlling_device === "phone");
   });
