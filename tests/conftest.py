@@ -11,10 +11,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from xdist.remote import Producer
 
 from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.sim.interface import Simulation
 from tests.fixtures.exclusive import EXCLUSIVE, SERIAL, room
+from tests.fixtures.schedule import SerialFirstScheduling
 
 _GUARD = pytest.StashKey[tuple[subprocess.Popen, Path]]()
 
@@ -27,6 +29,12 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         cwd=Path(__file__).parent.parent,
     )
     session.config.stash[_GUARD] = (guard, log)
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Producer) -> SerialFirstScheduling:
+    """Modules sharing a `serial` resource on one worker, slow modules first
+    (tests/fixtures/schedule.py)."""
+    return SerialFirstScheduling(config, log)
 
 
 @pytest.hookimpl(hookwrapper=True)
