@@ -2,6 +2,8 @@
 // server takes: a 6-DoF pose in the device's own frame, a clutch and a gripper. Keyboard,
 // gamepad and 3D mouse give velocities, integrated here into a virtual hand pose.
 
+import { xrToRobot } from "./xr.js";
+
 const MAX_SPEED = 0.25;   // m/s at full deflection
 const MAX_TURN = 1.2;     // rad/s
 
@@ -118,35 +120,86 @@ export class SpaceMouseDevice {
   }
 }
 
-// A VR controller (WebXR immersive-vr): its grip pose is the device pose; trigger = gripper
-// (held), grip button = clutch (held).
+// A VR controller (WebXR immersive-vr): the driving hand's grip pose is the device pose;
+// trigger (buttons[0]) = gripper (held), grip (buttons[1]) = clutch (held). The right hand
+// drives when there is one. `scene` (xr_screen.js's XrScreen) draws what the headset shows and
+// hears the other hand; `onEnd` is called when the session ends (the worker left VR).
+export const HAPTIC_MS = 60;
+
+// A contact's intensity (0..1, the server's) as a pulse strength: the lightest touch is felt.
+export const pulseStrength = (intensity) => 0.3 + 0.7 * Math.min(1, Math.max(0, intensity));
+
+export function handsOf(inputSources) {
+  const hands = [...inputSources].filter((s) => s.gripSpace && s.gamepad);
+  const driver = hands.find((s) => s.handedness === "right") || hands[0] || null;
+  return { driver, other: hands.find((s) => s !== driver) || null };
+}
+
 export class VRControllerDevice {
-  constructor() { this.kind = "vr"; this.session = null; this.latest = null; }
+  constructor() { this.kind = "vr"; this.session = null; this.latest = null; this.driver = null; }
   static async supported() {
     return Boolean(navigator.xr) && (await navigator.xr.isSessionSupported("immersive-vr"));
   }
-  async open(onPose) {
-    this.session = await navigator.xr.requestSession("immersive-vr");
-    const canvas = document.createElement("canvas");
-    const gl = canvas.getContext("webgl", { xrCompatible: true });
-    this.session.updateRenderState({ baseLayer: new XRWebGLLayer(this.session, gl) });
-    const space = await this.session.requestReferenceSpace("local");
-    const frame = (time, xrFrame) => {
-      for (const source of this.session.inputSources) {
-        if (!source.gripSpace || !source.gamepad) continue;
-        const pose = xrFrame.getPose(source.gripSpace, space);
-        if (!pose) continue;
-        const { position: p, orientation: q } = pose.transform;
-        // WebXR is y-up, x-right, z-toward-user; the robot frame is z-up, x-forward.
-        this.latest = { position: [-p.z, -p.x, p.y], quaternion: [-q.z, -q.x, q.y, q.w],
-                        gripper: source.gamepad.buttons[0]?.pressed || false,
-                        engaged: source.gamepad.buttons[1]?.pressed || false };
-        onPose(this.latest);
-        break;
-      }
-      this.session.requestAnimationFrame(frame);
+  async open(onPose, scene = null, onEnd = () => {}) {
+    const session = await navigator.xr.requestSession("immersive-vr");
+    this.session = session;
+    session.addEventListener("end", () => {
+      this.session = null; this.latest = null; this.driver = null;
+      onEnd();
+    });
+    let layer, space;
+    try {
+      const gl = document.createElement("canvas").getContext("webgl", { xrCompatible: true });
+      layer = new XRWebGLLayer(session, gl);
+      session.updateRenderState({ baseLayer: layer });
+      scene?.attach(gl);
+      space = await session.requestReferenceSpace("local");
+    } catch (error) {
+      await session.end().catch(() => {});
+      throw error;
+    }
+    this.#run(session, layer, space, onPose, scene);
+  }
+  #run(session, layer, space, onPose, scene) {
+    let lastMs = null;
+    const frame = (timeMs, xrFrame) => {
+      if (this.session !== session) return;
+      session.requestAnimationFrame(frame);
+      const { driver, other } = handsOf(session.inputSources);
+      this.#drive(xrFrame, space, driver, onPose);
+      const viewer = xrFrame.getViewerPose(space);
+      const dt = (timeMs - (lastMs ?? timeMs)) / 1000;
+      lastMs = timeMs;
+      if (scene && viewer) scene.draw(viewer, layer, otherHand(xrFrame, space, other), dt);
     };
-    this.session.requestAnimationFrame(frame);
+    session.requestAnimationFrame(frame);
+  }
+  #drive(xrFrame, space, source, onPose) {
+    this.driver = source;
+    const pose = source && xrFrame.getPose(source.gripSpace, space);
+    if (!pose) return;
+    this.latest = { ...xrToRobot(pose.transform),
+                    gripper: source.gamepad.buttons[0]?.pressed || false,
+                    engaged: source.gamepad.buttons[1]?.pressed || false };
+    onPose(this.latest);
+  }
+  // A haptic pulse on the driving controller, where it has an actuator.
+  pulse(intensity, ms = HAPTIC_MS) {
+    const gamepad = this.driver?.gamepad;
+    const actuator = gamepad?.hapticActuators?.[0];
+    if (actuator?.pulse) return actuator.pulse(pulseStrength(intensity), ms);
+    return gamepad?.vibrationActuator?.playEffect?.("dual-rumble",
+      { duration: ms, strongMagnitude: pulseStrength(intensity) });
   }
   update() { return this.latest; }
+}
+
+// The non-driving hand as the screen hears it: where it is, its grip, its thumbstick.
+function otherHand(xrFrame, space, source) {
+  const pose = source && xrFrame.getPose(source.gripSpace, space);
+  if (!pose) return null;
+  const { x, y, z } = pose.transform.position;
+  const axes = source.gamepad.axes;
+  return { position: [x, y, z], squeeze: source.gamepad.buttons[1]?.pressed || false,
+           stick: [axes[2] ?? 0, axes[3] ?? 0] };
 }

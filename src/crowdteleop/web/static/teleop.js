@@ -6,6 +6,7 @@ import { GamepadDevice, KEY_LEGEND, KeyboardDevice, SpaceMouseDevice, VRControll
 import { watchPractice } from "./practice.js";
 import { Protocol } from "./protocol.js";
 import { TeleopConnection } from "./rtc.js";
+import { XrScreen } from "./xr_screen.js";
 
 const $ = (id) => document.getElementById(id);
 const HEARTBEAT_MS = 5000;
@@ -24,6 +25,7 @@ class TeleopPage {
     this.device = null;  // the input device whose commands this page sends
     this.external = false;  // a script drives through `drive`: the keyboard stays quiet
     this.pairing = null;
+    this.xrScreen = null;  // what the VR headset shows (xr_screen.js), while in VR
     this.lastCommand = null;
     this.refusedAtMs = 0;  // performance.now() of the last not_in_control refusal
     this.tookControlAtMs = 0;  // performance.now() of our last take_control
@@ -224,6 +226,9 @@ function showStatus() {
         + "the picture is back. Then let go of the clutch and press it again.");
     } else clearBanner();
   });
+  c.addEventListener("haptic", ({ detail }) => {
+    if (page.device === page.devices.vr) page.devices.vr.pulse(detail.intensity);
+  });
   c.addEventListener("saved", ({ detail }) => {
     if (detail.outcome === "success") banner("info", "Demonstration saved. Thank you!");
     heartbeat();
@@ -258,6 +263,34 @@ function statusTicker() {
   }, 1000);
 }
 
+// The headset shows the video, the task, the demonstrations and the clutch (xr_screen.js);
+// leaving VR hands the arm back to the keyboard.
+async function enterVr() {
+  const vr = page.devices.vr;
+  page.xrScreen = new XrScreen($("video"), vrStatus);
+  $("use-vr").disabled = true;
+  try {
+    await vr.open(() => {}, page.xrScreen, leftVr);
+    useDevice(vr);
+  } catch (error) {
+    banner("error", `VR: ${error.message}`);
+    $("use-vr").disabled = false;
+  }
+}
+
+function leftVr() {
+  page.xrScreen = null;
+  $("use-vr").disabled = false;
+  if (page.device === page.devices.vr) useDevice(page.devices.keyboard);
+  banner("info", "You left VR: the keyboard drives again (or press Drive in VR).");
+}
+
+function vrStatus() {
+  const view = page.view || {}, status = page.connection && page.connection.state.status;
+  return { task: view.instruction, demosDone: view.demos_done, demosRequired: view.demos_required,
+           clutch: status && status.clutch };
+}
+
 function wireButtons() {
   $("start").onclick = () => page.connection && page.connection.request("start");
   $("reset").onclick = () => page.connection && page.connection.request("reset");
@@ -267,12 +300,7 @@ function wireButtons() {
     try { await page.devices.spacemouse.open(); useDevice(page.devices.spacemouse); }
     catch (error) { banner("error", `3D mouse: ${error.message}`); }
   };
-  $("use-vr").onclick = async () => {
-    try {
-      useDevice(page.devices.vr);
-      await page.devices.vr.open(() => {});
-    } catch (error) { banner("error", `VR: ${error.message}`); }
-  };
+  $("use-vr").onclick = enterVr;
   for (const id of ["start", "reset", "use-keyboard", "use-gamepad", "use-spacemouse", "use-vr"]) $(id).disabled = false;
   $("use-spacemouse").hidden = !SpaceMouseDevice.supported;
   window.addEventListener("gamepadconnected", () => { $("use-gamepad").hidden = false; });
