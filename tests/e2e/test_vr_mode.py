@@ -249,7 +249,7 @@ def test_the_headset_shows_the_video_the_controller_drives_and_buzzes(tmp_path, 
     assert np.linalg.norm(seen["moved"]) > 0.02
     assert np.linalg.norm(seen["moved"] - seen["wanted"]) < 0.03
     assert seen["instruction"] in seen["panel"] and "Demonstrations 0 / 3" in seen["panel"]
-    assert "Clutch: ready" in seen["panel"]
+    assert "Ready: hold to move." in seen["panel"], "the clutch's state, in words"
     assert seen["pulses"][0]["right"] and 0.3 <= seen["pulses"][0]["value"] <= 1
     placed, farther, lifted = (np.array(rect) for rect in seen["screen_moves"])
     assert farther[2] - farther[0] < 0.85 * (placed[2] - placed[0]), "pushed away: smaller"

@@ -5,7 +5,7 @@ import assert from "node:assert/strict";
 import { test } from "node:test";
 
 import { handsOf, pulseStrength } from "../../src/crowdteleop/web/static/devices.js";
-import { SCREEN, ScreenPlacement, facingMatrix, panelMatrix, projectedRect, statusLines } from "../../src/crowdteleop/web/static/xr_screen.js";
+import { SCREEN, ScreenPlacement, facingMatrix, panelMatrix, projectedRect, statusLines, wrap } from "../../src/crowdteleop/web/static/xr_screen.js";
 
 const close = (actual, expected, tolerance = 1e-9) =>
   actual.forEach((v, i) => assert.ok(Math.abs(v - expected[i]) < tolerance, `${actual} != ${expected}`));
@@ -77,8 +77,15 @@ test("the screen's rectangle in a view: 1.2 m wide at 1.5 m is 40% of a 90-degre
 
 test("the panel says the task, the demonstrations and the clutch in words", () => {
   assert.deepEqual(statusLines({ task: "Lift the cube.", demosDone: 1, demosRequired: 3, clutch: "driving" }),
-    ["Lift the cube.", "Demonstrations 1 / 3", "Clutch: moving. Moving: the arm follows you."]);
+    ["Lift the cube.", "Demonstrations 1 / 3", "Moving: the arm follows you."]);
   assert.deepEqual(statusLines({}), ["Connecting…", "Demonstrations –", "Clutch: –"]);
+});
+
+test("long lines wrap at words", () => {
+  const measure = (text) => text.length * 10;
+  assert.deepEqual(wrap("Let go and press again to move", 120, measure), ["Let go and", "press again", "to move"]);
+  assert.deepEqual(wrap("unbreakablelongword fits", 50, measure), ["unbreakablelongword", "fits"]);
+  assert.deepEqual(wrap("", 50, measure), []);
 });
 
 test("the right hand drives when there is one; the other moves the screen", () => {

@@ -6,12 +6,12 @@
 // screen along with the hand; its thumbstick pushes the screen away or pulls it nearer (up /
 // down) and makes it larger or smaller (right / left). The screen always faces the worker.
 
-import { CLUTCH_TEXT, CLUTCH_WORD } from "./clutch.js";
+import { CLUTCH_TEXT } from "./clutch.js";
 
 export const SCREEN = { distance: 1.5, width: 1.2, drop: 0.15,  // m ahead, m wide, m below the eyes
                         minWidth: 0.4, maxWidth: 4, minDistance: 0.5, maxDistance: 5,
                         pushSpeed: 1.0, growRate: 1.0 };  // m/s and e-folds/s at full stick
-const PANEL = { widthOfScreen: 0.75, gap: 0.05, pixels: [768, 192] };
+const PANEL = { widthOfScreen: 0.75, gap: 0.05, pixels: [768, 256], margin: 24, lineHeight: 46 };
 const DEAD_ZONE = 0.15;
 const BACKGROUND = [0.08, 0.08, 0.1, 1];
 
@@ -87,9 +87,18 @@ export function projectedRect(projection, viewInverse, model, { width, height })
 // The panel's words. info: { task, demosDone, demosRequired, clutch } (any may be missing).
 export function statusLines({ task, demosDone, demosRequired, clutch } = {}) {
   const demos = demosRequired ? `${demosDone ?? 0} / ${demosRequired}` : "–";
-  const word = CLUTCH_WORD[clutch];
-  return [task || "Connecting…", `Demonstrations ${demos}`,
-          word ? `Clutch: ${word}. ${CLUTCH_TEXT[clutch]}` : "Clutch: –"];
+  return [task || "Connecting…", `Demonstrations ${demos}`, CLUTCH_TEXT[clutch] || "Clutch: –"];
+}
+
+// `text` in lines no wider than `width`, as `measure(text)` measures them (words kept whole).
+export function wrap(text, width, measure) {
+  const lines = [];
+  for (const word of text.split(/\s+/).filter(Boolean)) {
+    const last = lines.length ? `${lines[lines.length - 1]} ${word}` : null;
+    if (last !== null && measure(last) <= width) lines[lines.length - 1] = last;
+    else lines.push(word);
+  }
+  return lines;
 }
 
 // --- drawing -------------------------------------------------------------------------------
@@ -138,13 +147,17 @@ function texture(gl) {
 
 function drawPanel(canvas, lines) {
   const context = canvas.getContext("2d");
-  const [w, h] = PANEL.pixels;
+  const [w, h] = PANEL.pixels, { margin, lineHeight } = PANEL;
   context.fillStyle = "#1c2230";
   context.fillRect(0, 0, w, h);
   context.fillStyle = "#ffffff";
+  let y = margin + 30;
   lines.forEach((line, i) => {
-    context.font = i === 0 ? "bold 34px sans-serif" : "30px sans-serif";
-    context.fillText(line, 24, 52 + i * 56, w - 48);
+    context.font = i === 0 ? "bold 34px sans-serif" : "32px sans-serif";
+    for (const part of wrap(line, w - 2 * margin, (t) => context.measureText(t).width)) {
+      context.fillText(part, margin, y);
+      y += lineHeight;
+    }
   });
 }
 
