@@ -120,27 +120,29 @@ export class SpaceMouseDevice {
   }
 }
 
-// A VR controller (WebXR immersive-vr): the driving hand's grip pose is the device pose;
-// trigger (buttons[0]) = gripper (held), grip (buttons[1]) = clutch (held). The right hand
-// drives when there is one. `scene` (xr_screen.js's XrScreen) draws what the headset shows and
-// hears the other hand; `onEnd` is called when the session ends (the worker left VR).
 export const HAPTIC_MS = 60;
 
 // A contact's intensity (0..1, the server's) as a pulse strength: the lightest touch is felt.
 export const pulseStrength = (intensity) => 0.3 + 0.7 * Math.min(1, Math.max(0, intensity));
 
+// The controllers of an XR session: the right one drives when there is one; the other one
+// (if any) moves the headset's screen.
 export function handsOf(inputSources) {
   const hands = [...inputSources].filter((s) => s.gripSpace && s.gamepad);
   const driver = hands.find((s) => s.handedness === "right") || hands[0] || null;
   return { driver, other: hands.find((s) => s !== driver) || null };
 }
 
+// A VR controller (WebXR immersive-vr): the driving hand's grip pose is the device pose;
+// trigger (buttons[0]) = gripper (held), grip (buttons[1]) = clutch (held). `open(scene,
+// onEnd)`: `scene` (xr_screen.js's XrScreen) draws what the headset shows and hears the other
+// hand; `onEnd` is called when the session ends (the worker left VR).
 export class VRControllerDevice {
   constructor() { this.kind = "vr"; this.session = null; this.latest = null; this.driver = null; }
   static async supported() {
     return Boolean(navigator.xr) && (await navigator.xr.isSessionSupported("immersive-vr"));
   }
-  async open(onPose, scene = null, onEnd = () => {}) {
+  async open(scene = null, onEnd = () => {}) {
     const session = await navigator.xr.requestSession("immersive-vr");
     this.session = session;
     session.addEventListener("end", () => {
@@ -158,15 +160,15 @@ export class VRControllerDevice {
       await session.end().catch(() => {});
       throw error;
     }
-    this.#run(session, layer, space, onPose, scene);
+    this.#run(session, layer, space, scene);
   }
-  #run(session, layer, space, onPose, scene) {
+  #run(session, layer, space, scene) {
     let lastMs = null;
     const frame = (timeMs, xrFrame) => {
       if (this.session !== session) return;
       session.requestAnimationFrame(frame);
       const { driver, other } = handsOf(session.inputSources);
-      this.#drive(xrFrame, space, driver, onPose);
+      this.#drive(xrFrame, space, driver);
       const viewer = xrFrame.getViewerPose(space);
       const dt = (timeMs - (lastMs ?? timeMs)) / 1000;
       lastMs = timeMs;
@@ -174,14 +176,13 @@ export class VRControllerDevice {
     };
     session.requestAnimationFrame(frame);
   }
-  #drive(xrFrame, space, source, onPose) {
+  #drive(xrFrame, space, source) {
     this.driver = source;
     const pose = source && xrFrame.getPose(source.gripSpace, space);
     if (!pose) return;
     this.latest = { ...xrToRobot(pose.transform),
                     gripper: source.gamepad.buttons[0]?.pressed || false,
                     engaged: source.gamepad.buttons[1]?.pressed || false };
-    onPose(this.latest);
   }
   // A haptic pulse on the driving controller, where it has an actuator.
   pulse(intensity, ms = HAPTIC_MS) {

@@ -270,7 +270,7 @@ async function enterVr() {
   page.xrScreen = new XrScreen($("video"), vrStatus);
   $("use-vr").disabled = true;
   try {
-    await vr.open(() => {}, page.xrScreen, leftVr);
+    await vr.open(page.xrScreen, leftVr);
     useDevice(vr);
   } catch (error) {
     banner("error", `VR: ${error.message}`);
