@@ -177,9 +177,14 @@ async def _drive_to_cube(page: Any, coord_url: str) -> dict[str, Any]:
     robot = cube - hand + [0.0, 0.0, 0.005]  # forward, left, up
     xr = np.array([-robot[1], robot[2], -robot[0]])  # WebXR: right, up, back
     await _carry_right(page, RIGHT_START, RIGHT_START + xr, 1.5)
-    await asyncio.sleep(1.0)
+    moved = await _hand(page) - before
+    for _ in range(100):  # the arm catches up with the hand (slower on a loaded machine)
+        if np.linalg.norm(moved - robot) < 0.03:
+            break
+        await asyncio.sleep(0.1)
+        moved = await _hand(page) - before
     return {
-        "moved": await _hand(page) - before,
+        "moved": moved,
         "wanted": robot,
         "after": np.array((await page.evaluate(GRID))["grid"]),
     }
