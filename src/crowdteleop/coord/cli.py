@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from rich.console import Console
 
     from crowdteleop.coord.service.config import CoordConfig
+    from crowdteleop.coord.service.preparing import Preparation
 
 TlsFiles = tuple[Path, Path]
 
@@ -408,8 +409,12 @@ async def _run(
             if main.should_exit:
                 return
             await asyncio.sleep(0.05)
+        first_robot = await _first_robot(app.state.coordinator.preparation, settings, main)
+        if main.should_exit:
+            return
         base = settings.public_url.rstrip("/")
         print(f"READY {base}", flush=True)
+        print(f"  first robot: {first_robot}", flush=True)
         print(f"  join link:  {base}/join", flush=True)
         print(f"  admin page: {base}/admin", flush=True)
         if show_token:
@@ -427,6 +432,28 @@ async def _run(
 
     await asyncio.gather(main_then_side(), *servers[1:], announce())
     return bool(main.started)
+
+
+async def _first_robot(preparation: Preparation, settings: CoordConfig, main: Any) -> str:
+    """Wait (while `main` serves) for the first warm spare, so READY means the first worker
+    gets a robot at once; what to say of the first robot."""
+    import asyncio
+
+    typical = preparation.typical_start_s()
+    if settings.spare_servers != 0:
+        print(f"warming the first robot (a start takes about {typical:.0f} s)…", flush=True)
+    waiting = asyncio.create_task(preparation.first_robot(settings.teleop_start_timeout_s))
+    while not waiting.done() and not main.should_exit:
+        await asyncio.sleep(0.05)
+    if not waiting.done():
+        waiting.cancel()
+    waited = None
+    with contextlib.suppress(asyncio.CancelledError, Exception):
+        waited = await waiting
+    if waited is not None:
+        return f"warm, ready at once (it took {waited:.1f} s)"
+    why = "spare_servers is 0" if settings.spare_servers == 0 else "no warm spare is ready"
+    return f"about {typical:.0f} s after the first worker joins ({why})"
 
 
 class _QuietServer:

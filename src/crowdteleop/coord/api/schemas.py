@@ -71,6 +71,15 @@ class PingView(BaseModel):
     queued: int = Field(description="workers waiting for one")
 
 
+class RobotPreparation(BaseModel):
+    """A robot (teleop server) on its way, for the pages' countdown and progress bar."""
+
+    eta_s: float = Field(ge=0, description="about how many seconds until it is ready")
+    total_s: float = Field(
+        ge=0, description="how long a start takes here (the median of recent ones it measured)"
+    )
+
+
 class CampaignView(BaseModel):
     name: str
     title: str
@@ -86,6 +95,12 @@ class CampaignView(BaseModel):
         default_factory=list, description="where the campaign is served; empty: here alone"
     )
     region: str | None = Field(None, description="the region this coordinator is")
+    robot: RobotPreparation | None = Field(
+        None,
+        description="how long a worker joining now would wait for a robot with a slot free "
+        "(eta 0: a warm one is ready); null when every slot is held (the queue's wait is told "
+        "once in line)",
+    )
 
 
 class JoinResponse(BaseModel):
@@ -119,6 +134,9 @@ class SessionView(BaseModel):
     )
     ready_at: float | None = Field(
         None, description="when the session's current robot became ready: a new value, a new robot"
+    )
+    preparing: RobotPreparation | None = Field(
+        None, description="while starting: how long until its robot is ready; null otherwise"
     )
 
 

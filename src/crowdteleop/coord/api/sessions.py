@@ -31,7 +31,7 @@ from crowdteleop.coord.api.schemas import (
     RegionView,
     SessionView,
 )
-from crowdteleop.coord.api.views import session_view
+from crowdteleop.coord.api.views import preparation_view, session_view
 from crowdteleop.coord.db.tables import Worker
 from crowdteleop.coord.guard.errors import ApiError
 from crowdteleop.coord.service.campaign import NAME_PATTERN, CampaignConfig
@@ -64,7 +64,8 @@ async def campaign(
     coordinator: CoordinatorDep,
 ) -> CampaignView:
     """What the join page shows before anyone agrees: the task, how many demonstrations and
-    how long it takes. `default` is the campaign a link without `campaign=` joins."""
+    how long it takes, and whether a robot is ready or being prepared. `default` is the
+    campaign a link without `campaign=` joins."""
     chosen = config.campaign(name)
     if chosen is None and name == "default":
         chosen = config.default_campaign
@@ -76,6 +77,7 @@ async def campaign(
         update={
             "typical_session_s": round(typical) if typical is not None else None,
             "region": config.region,
+            "robot": preparation_view(await coordinator.preparation.newcomer_wait()),
         }
     )
 

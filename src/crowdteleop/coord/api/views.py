@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import time
 
-from crowdteleop.coord.api.schemas import SessionView
+from crowdteleop.coord.api.schemas import RobotPreparation, SessionView
 from crowdteleop.coord.db.tables import Session, Worker
 from crowdteleop.coord.service.coordinator import Coordinator
+from crowdteleop.coord.service.preparing import Preparing
 from crowdteleop.tasks import get_task
 
 PROLIFIC_COMPLETE = "https://app.prolific.com/submissions/complete?cc="
@@ -47,7 +48,14 @@ async def session_view(
         ended_reason=session.ended_reason,
         notice=_notice(session),
         ready_at=session.ready_at,
+        preparing=preparation_view(coordinator.preparation.of(session)),
     )
+
+
+def preparation_view(preparing: Preparing | None) -> RobotPreparation | None:
+    if preparing is None:
+        return None
+    return RobotPreparation(eta_s=preparing.eta_s, total_s=preparing.total_s)
 
 
 def _notice(session: Session) -> str | None:

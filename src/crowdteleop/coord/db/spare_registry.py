@@ -30,10 +30,11 @@ class SpareRow:
     replica: str
     server: str | None
     url: str | None  # none while it starts
+    started_at: float | None = None  # when its start began (Unix seconds)
 
 
 def _row(spare: Spare) -> SpareRow:
-    return SpareRow(spare.id, spare.key, spare.replica, spare.server, spare.url)
+    return SpareRow(spare.id, spare.key, spare.replica, spare.server, spare.url, spare.started_at)
 
 
 class SpareRegistry:

@@ -17,7 +17,7 @@ import contextlib
 import logging
 import secrets
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 
 import aiohttp
 
@@ -30,6 +30,7 @@ from crowdteleop.coord.fleet.launcher import (
     reattach,
     server_name,
 )
+from crowdteleop.coord.fleet.startup import StartupStats
 from crowdteleop.coord.fleet.teleop_http import assign
 from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.messages import Assignment
@@ -45,20 +46,24 @@ def new_spare_id() -> str:
 class SparePool:
     """This replica's side of the spares: it starts and watches some, and claims any it can
     reach. `make_config(key, spare_id)` builds a spare's config, `admin_token_of(spare_id)` its
-    admin token (derived: any replica can assign a spare), `lock` is the admission lock (one
-    replica at a time decides whether a kind needs another spare)."""
+    admin token (derived: any replica can assign a spare), `wanted()` how many spares each kind
+    should have now (`spare_servers`, or with `auto` the free slots the memory allows), `lock`
+    is the admission lock (one replica at a time decides whether a kind needs more spares).
+    The spares a kind lacks are started together, not one after another."""
 
     def __init__(
         self,
         launcher: Launcher,
         make_config: Callable[[SpareKey, str], TeleopConfig],
         admin_token_of: Callable[[str], str],
-        per_key: int,
+        wanted: Callable[[], Awaitable[dict[SpareKey, int]]],
         registry: SpareRegistry,
         lock: contextlib.AbstractAsyncContextManager[None],
+        startup: StartupStats,
     ) -> None:
         self.launcher, self.make_config, self.admin_token_of = launcher, make_config, admin_token_of
-        self.per_key, self.registry, self.lock = per_key, registry, lock
+        self.wanted, self.registry, self.lock = wanted, registry, lock
+        self.startup = startup
         self.handles: dict[str, TeleopHandle] = {}  # the spares this replica watches, by id
         self._filling: dict[SpareKey, asyncio.Task[None]] = {}
         self._failed_at: dict[SpareKey, float] = {}
@@ -70,8 +75,9 @@ class SparePool:
         return isinstance(self.launcher, ReattachingLauncher)
 
     def fill(self, keys: list[SpareKey]) -> None:
-        """Start spares in the background until each key has `per_key` ready or starting."""
-        if self._closed or self.per_key <= 0:
+        """Start spares in the background until each key has as many ready or starting as
+        `wanted()` says."""
+        if self._closed:
             return
         now = time.monotonic()
         for key in keys:
@@ -84,16 +90,23 @@ class SparePool:
     async def _top_up(self, key: SpareKey) -> None:
         while not self._closed:
             async with self.lock:
-                if await self.registry.count(key, own=not self.shared) >= self.per_key:
+                wanted = (await self.wanted()).get(key, 0)
+                missing = wanted - await self.registry.count(key, own=not self.shared)
+                if missing <= 0:
                     return
-                spare_id = new_spare_id()
-                await self.registry.add(spare_id, key)
-            if not await self._start(key, spare_id):
+                spare_ids = [new_spare_id() for _ in range(missing)]
+                for spare_id in spare_ids:
+                    await self.registry.add(spare_id, key)
+            starts = [self._start(key, spare_id) for spare_id in spare_ids]
+            if not all(await asyncio.gather(*starts)):
                 return
 
     async def _start(self, key: SpareKey, spare_id: str) -> bool:
+        log.info("spare %s starting for %s", spare_id, key_text(key))
         try:
+            began = time.monotonic()
             handle = await self.launcher.start(self.make_config(key, spare_id))
+            self.startup.started(time.monotonic() - began, getattr(handle, "pid", None))
         except (LaunchError, OSError) as exc:
             log.error("a spare teleop server for %s did not start: %s", key, exc)
             self._failed_at[key] = time.monotonic()
@@ -108,7 +121,7 @@ class SparePool:
             return False
         self.handles[spare_id] = handle
         await self.registry.ready(spare_id, handle.url, server_name(self.launcher, handle))
-        log.info("spare teleop server ready for %s at %s", key, handle.url)
+        log.info("spare %s ready for %s at %s", spare_id, key_text(key), handle.url)
         return True
 
     async def take(self, key: SpareKey, assignment: Assignment) -> TeleopHandle | None:
@@ -129,11 +142,22 @@ class SparePool:
     async def _reach(self, row: SpareRow) -> TeleopHandle | None:
         return await reattach(self.launcher, row.id, row.server)
 
-    def short(self, keys: list[SpareKey], rows: list[SpareRow]) -> list[SpareKey]:
-        """The kinds of `keys` with fewer than `per_key` spares in `rows` (every replica's on
-        a cluster, this one's otherwise): `fill` need not take the lock for the others."""
+    def short(self, wanted: dict[SpareKey, int], rows: list[SpareRow]) -> list[SpareKey]:
+        """The kinds with fewer spares in `rows` (every replica's on a cluster, this one's
+        otherwise) than `wanted`: `fill` need not take the lock for the others."""
         counted = [r for r in rows if self.shared or r.replica == self.registry.replica]
-        return [k for k in keys if sum(r.key == key_text(k) for r in counted) < self.per_key]
+        return [k for k, n in wanted.items() if sum(r.key == key_text(k) for r in counted) < n]
+
+    def ready(self, rows: list[SpareRow]) -> list[SpareRow]:
+        """The spares of `rows` this replica can hand out now."""
+        return [r for r in rows if r.url is not None and (self.shared or self.mine(r))]
+
+    def starting(self, rows: list[SpareRow]) -> list[SpareRow]:
+        """The spares of `rows` still starting that this replica could hand out."""
+        return [r for r in rows if r.url is None and (self.shared or self.mine(r))]
+
+    def mine(self, row: SpareRow) -> bool:
+        return row.replica == self.registry.replica
 
     async def sweep(self, alive_replicas: set[str]) -> list[SpareRow]:
         """Forget spares whose server is gone (the next `fill` replaces them); watch from here

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, Literal, cast
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -21,6 +21,7 @@ if TYPE_CHECKING:
 
 # CROWDTELEOP_<FIELD> sets a CoordConfig field (`crowdteleop serve`, docs/coordination.md).
 ENV_PREFIX = "CROWDTELEOP_"
+MAX_SPARES_PER_KIND = 16
 
 
 class AdmissionConfig(BaseModel):
@@ -61,13 +62,14 @@ class CoordConfig(BaseModel):
     ray: RayLauncherConfig | None = Field(
         None, description="run teleop servers on this Ray cluster instead of as local processes"
     )
-    spare_servers: int = Field(
-        1,
-        ge=0,
-        le=16,
+    spare_servers: int | Literal["auto"] = Field(
+        "auto",
         description="warm teleop servers kept ready per (task, robot, controller), so a worker "
         "sees the robot in about a second instead of waiting for a simulation to build; on a "
-        "cluster for all replicas together, with local processes per replica",
+        "cluster for all replicas together, with local processes per replica. 'auto': every "
+        "free slot kept warm (a burst of workers gets robots at once), as many as the machine's "
+        "available memory holds (each server's measured), started in parallel; on a cluster, "
+        "where a spare holds a slot, one per kind",
     )
     admin_token: str = Field(min_length=16, max_length=256)
     public_url: str = Field(
@@ -166,6 +168,13 @@ class CoordConfig(BaseModel):
                 "e.g. `python -c 'import secrets; print(secrets.token_urlsafe(32))'`"
             )
         return token
+
+    @field_validator("spare_servers")
+    @classmethod
+    def _spares_bounded(cls, spares: int | str) -> int | str:
+        if isinstance(spares, int) and not 0 <= spares <= MAX_SPARES_PER_KIND:
+            raise ValueError(f"spare_servers: 'auto' or 0 to {MAX_SPARES_PER_KIND} per kind")
+        return spares
 
     @field_validator("trusted_proxies")
     @classmethod

@@ -27,6 +27,7 @@ from typing import Any
 import aiohttp
 
 from crowdteleop.coord.db.replicas import default_replica_name
+from crowdteleop.coord.db.spare_registry import SpareKey
 from crowdteleop.coord.db.store import Store
 from crowdteleop.coord.db.tables import Session, Worker
 from crowdteleop.coord.fleet.cluster import ClusterRoom
@@ -39,6 +40,7 @@ from crowdteleop.coord.fleet.launcher import (
 )
 from crowdteleop.coord.fleet.pool import ServerState, TeleopPool
 from crowdteleop.coord.fleet.spares import SparePool
+from crowdteleop.coord.fleet.startup import StartupStats, available_bytes
 from crowdteleop.coord.guard.security import new_id, new_token, token_hash
 from crowdteleop.coord.guard.session_keys import SessionKeys
 from crowdteleop.coord.service.admission import AdmissionRules
@@ -47,6 +49,7 @@ from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.liveness import Liveness
 from crowdteleop.coord.service.metrics import CoordMetrics, RestartCause
 from crowdteleop.coord.service.occupancy import Occupancy, OccupancyCache
+from crowdteleop.coord.service.preparing import Preparation
 from crowdteleop.coord.service.reaper import RESTART, verdict
 from crowdteleop.coord.service.replication import Replication, orphans
 from crowdteleop.coord.service.spools import SWEEP_INTERVAL_S, SpoolSweeper
@@ -55,6 +58,14 @@ from crowdteleop.coord.service.waits import WaitEstimates
 from crowdteleop.teleop.messages import IceServer
 
 log = logging.getLogger(__name__)
+
+
+def spread(total: int, keys: list[SpareKey]) -> dict[SpareKey, int]:
+    """`total` spares over `keys`, the first kinds (the campaigns' next) getting any extra."""
+    if not keys:
+        return {}
+    share, extra = divmod(total, len(keys))
+    return {key: share + (1 if n < extra else 0) for n, key in enumerate(keys)}
 
 
 class Coordinator:
@@ -78,13 +89,23 @@ class Coordinator:
         name = config.replica_name or default_replica_name()
         self._replicas = store.replicas(name, config.replica_stale_after_s)
         self._spare_registry = store.spare_registry(name)
+        self._startup = StartupStats()
         self._spares = SparePool(
             launcher,
             self._configs.for_spare,
             keys.teleop_admin_token,
-            config.spare_servers,
+            self._spare_targets,
             self._spare_registry,
             self._lock,
+            self._startup,
+        )
+        self.preparation = Preparation(
+            self._startup,
+            self._spares,
+            self._spare_registry,
+            self._free_slots,
+            self._spare_targets,
+            lambda session_id: session_id in self._launches,
         )
         self._cluster = ClusterRoom(launcher, self._spare_registry)
         self._replication = Replication(
@@ -200,7 +221,7 @@ class Coordinator:
         async with self._lock:
             await self._replication.reconcile()
         listed = await self._spares.sweep(alive)
-        self._spares.fill(self._spares.short(self._configs.spare_keys(), listed))
+        self._spares.fill(self._spares.short(await self._spare_targets(), listed))
         await self._store.forget_old_limit_events()
 
     async def _follow_cluster(self, admit: bool = True) -> None:
@@ -216,7 +237,8 @@ class Coordinator:
             if admit:
                 await self.admit()
         live = await self._sessions.live_sessions()
-        await self._cluster.request(len(live) + self.config.spare_servers)
+        spares = self.config.spare_servers
+        await self._cluster.request(len(live) + (1 if spares == "auto" else spares))
 
     async def _reap(self, now: float) -> list[tuple[str, str]]:
         """End the sessions nobody is at any more; queue again those whose server exited
@@ -270,6 +292,25 @@ class Coordinator:
     def ice_servers(self, name: str) -> list[IceServer]:
         """Everyone's STUN/TURN servers, and TURN credentials of `name`'s own, fresh now."""
         return self._configs.ice_servers(name)
+
+    # --- warm spares and robots on their way -------------------------------------------------
+
+    async def _spare_targets(self) -> dict[SpareKey, int]:
+        """How many spares each kind should have now: `spare_servers`, or with `auto` every
+        free slot (as many as the available memory holds) spread over the campaigns' kinds;
+        on a cluster, where a spare holds a slot, `auto` is one per kind."""
+        keys = self._configs.spare_keys()
+        setting = self.config.spare_servers
+        if setting != "auto":
+            return dict.fromkeys(keys, setting)
+        if self._spares.shared:
+            return dict.fromkeys(keys, 1)
+        total = await self._free_slots()
+        available = available_bytes()
+        if available is not None:
+            kept = await self._spare_registry.count(own=True)
+            total = min(total, kept + available // self._startup.server_bytes)
+        return spread(total, keys)
 
     # --- sessions -------------------------------------------------------------------------
 
@@ -359,10 +400,11 @@ class Coordinator:
         try:
             config = self._configs.for_session(session, report_token)
             key = (session.task, session.robot, session.controller)
-            handle = await self._spares.take(key, assignment_of(config))
+            with self.preparation.handing_over(session_id):
+                handle = await self._spares.take(key, assignment_of(config))
             self._spares.fill([key])  # replace the spare (or start one for next time)
             if handle is None:
-                handle = await self._launcher.start(config)
+                handle = await self.preparation.cold_start(self._launcher, session_id, config)
         except asyncio.CancelledError:
             raise
         except (LaunchError, ValueError, OSError) as exc:

@@ -1,11 +1,33 @@
 // The join / consent page: the study's ids come from the link; agreeing gets a worker token.
 
 import { call, worker } from "./api.js";
+import { showPreparing } from "./preparing.js";
 import { RTTS_PARAM, chooseRegion, decodeRoundTrips, joinUrlAt, measure, roundTrips } from "./region.js";
 
 const $ = (id) => document.getElementById(id);
 
 const minutes = (s) => Math.max(1, Math.round(s / 60));
+const LOOK_AGAIN_MS = 2000;  // how often the page asks again while a robot is being prepared
+
+// Whether a robot is ready for a worker who starts now, or how long until one is (a warm
+// spare starting, or a start after the click); all busy: the queue says the wait. Asked again
+// until one is ready, counting down in between.
+function showRobot(c, askedMs) {
+  const text = showPreparing($("preparing"), c.robot, Date.now(), askedMs);
+  $("robot").textContent = c.robot ? text : "All robots are busy: after Start you will see your place in line.";
+}
+
+async function watchRobot(name, campaign) {
+  let c = campaign, askedMs = Date.now();
+  const tick = setInterval(() => showRobot(c, askedMs), 250);
+  while (c && c.robot && c.robot.eta_s > 0) {
+    await new Promise((resolve) => setTimeout(resolve, LOOK_AGAIN_MS));
+    try { c = await call(`/api/campaigns/${encodeURIComponent(name)}`); askedMs = Date.now(); }
+    catch { break; }
+  }
+  showRobot(c, askedMs);
+  clearInterval(tick);
+}
 
 // What the study asks, before anyone agrees: the task, how many demonstrations, how long.
 // Returns the campaign (null when the link names none here).
@@ -57,8 +79,10 @@ async function main() {
   const allow = () => { $("agree").disabled = !placed || !$("consent").checked; };
   $("consent").onchange = allow;
   $("instructions").textContent = "Read the consent below, then start.";
-  const rtts = await placeWorker(await showCampaign(campaign || "default"), carried);
+  const shown = await showCampaign(campaign || "default");
+  const rtts = await placeWorker(shown, carried);
   if (rtts === undefined) return;
+  if (shown) watchRobot(campaign || "default", shown);
   placed = true;
   allow();
   // The token this tab was given before proves a rejoin is the same browser; another browser

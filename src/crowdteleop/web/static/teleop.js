@@ -4,6 +4,7 @@ import { call, worker } from "./api.js";
 import { CLUTCH_TEXT, CLUTCH_WORD } from "./clutch.js";
 import { GamepadDevice, KEY_LEGEND, KeyboardDevice, SpaceMouseDevice, VRControllerDevice } from "./devices.js";
 import { watchPractice } from "./practice.js";
+import { showPreparing } from "./preparing.js";
 import { Protocol } from "./protocol.js";
 import { TeleopConnection } from "./rtc.js";
 import { XrScreen } from "./xr_screen.js";
@@ -75,7 +76,8 @@ function showView(view) {
   }
   $("demos").textContent = `${view.demos_done} / ${view.demos_required}`;
   $("instruction").textContent = view.instruction;
-  if (view.state === "starting") banner("info", view.notice || "Starting your robot…");
+  const preparing = showPreparing($("preparing"), view.state === "starting" ? view.preparing : null);
+  if (view.state === "starting") banner("info", view.notice || preparing);
   else if (view.state === "queued" && view.notice) banner("info", view.notice);
   if (view.completion_code) finish(view);
   else if (view.state === "ended" && !page.ended) {
