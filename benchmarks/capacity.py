@@ -12,6 +12,14 @@ the same run and the capacity is also given normalized to a 3.5 ms step: N x t_r
 
     .venv/bin/python benchmarks/capacity.py                          # N = 1, 2, 4, 6, 8, 10
     .venv/bin/python benchmarks/capacity.py --sessions 4,6,8 --window 20 --json out/cap.json
+
+Burst mode (issue 34, item 5): a coordinator of capacity N with `spare_servers: auto` (every
+free slot kept warm) and, once its N spares are up, N bots (N = the machine's capacity, as the
+ramp found it) joining within 5 s; it reports each bot's first frame (from its join to its
+first video frame), their p50 / p95 (target: p95 <= 1.5 s) and plain robosuite's Lift step of
+the same run:
+
+    .venv/bin/python benchmarks/capacity.py --burst 4 --json out/burst.json
 """
 
 from __future__ import annotations
@@ -37,6 +45,7 @@ ADMIN = "capacity-admin-token-0123456789"
 ON_TIME, MIN_FPS, P50_MS, P95_MS = 0.95, 18.0, 60.0, 100.0
 REFERENCE_STEP_MS = 3.5
 MARK = "BENCH-BOT "
+BURST_P95_S = 1.5  # a burst's first frames, p95, from each bot's join
 
 
 # --- one bot, in its own process -------------------------------------------------------------
@@ -59,20 +68,23 @@ def bot_main(
         async with aiohttp.ClientSession() as http:
             return await visit(http, settings, index)
 
+    joined_at = time.time()  # wall clock: the burst's joins are compared across processes
     started, cpu0 = time.monotonic(), psutil.Process().cpu_times()
     report = asyncio.run(run())
     cpu1 = psutil.Process().cpu_times()
     cpu = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / (time.monotonic() - started)
-    print(MARK + json.dumps({**asdict(report), "cpu": cpu}), flush=True)
+    print(MARK + json.dumps({**asdict(report), "cpu": cpu, "joined_at": joined_at}), flush=True)
 
 
 # --- the ramp --------------------------------------------------------------------------------
 
 
-def _coordinator(directory: Path, n: int) -> tuple[subprocess.Popen[str], str]:
+def _coordinator(
+    directory: Path, n: int, spares: int | str = 0
+) -> tuple[subprocess.Popen[str], str]:
     config = {
         "capacity": n,
-        "spare_servers": 0,
+        "spare_servers": spares,
         "reaper_interval_s": 0.5,
         "admission": {"live_sessions_per_address": 256, "joins_per_minute_per_address": 600},
         "campaigns": [
@@ -190,6 +202,68 @@ def measure(n: int, warmup_s: float, window_s: float) -> dict[str, Any]:
     }
 
 
+def burst(n: int, window_s: float) -> dict[str, Any]:
+    """N bots joining within 5 s a coordinator whose N slots are kept warm (`auto` spares):
+    each bot's first frame, from its join."""
+    import httpx
+
+    with tempfile.TemporaryDirectory(prefix="bench-burst-") as tmp:
+        coordinator, url = _coordinator(Path(tmp), n, "auto")
+        gate = Path(tmp) / "all-ready"
+        bots: list[subprocess.Popen[str]] = []
+        try:
+            deadline = time.monotonic() + 180
+            while (spares := httpx.get(f"{url}/health", timeout=10).json()["spares"]) < n:
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"only {spares} of {n} spares warm after 180 s")
+                time.sleep(0.5)
+            for index in range(n):
+                command = [sys.executable, __file__, "--bot", url, "--index", str(index)]
+                command += ["--warmup", "1", "--window", str(window_s), "--gate", str(gate)]
+                bots.append(subprocess.Popen(command, stdout=subprocess.PIPE, text=True))
+            while len(_ready_sessions(url)) < n:
+                if time.monotonic() > deadline + 60:
+                    raise TimeoutError(f"not all {n} sessions ready")
+                time.sleep(0.2)
+            gate.touch()
+            reports = [_report(bot, window_s + 120) for bot in bots]
+        finally:
+            for bot in bots:
+                if bot.poll() is None:
+                    bot.kill()
+            stop_gracefully(coordinator, 30)
+    first = [r["first_frame_s"] for r in reports if r["first_frame_s"] is not None]
+    joins = [r["joined_at"] for r in reports if "joined_at" in r]
+    p95 = _percentile(first, 95) if len(first) > 1 else (first[0] if first else None)
+    return {
+        "bots": n,
+        "errors": [r["error"] for r in reports if r["error"]],
+        "joins_within_s": max(joins) - min(joins) if joins else None,
+        "first_frame_s": first,
+        "first_frame_p50_s": statistics.median(first) if first else None,
+        "first_frame_p95_s": p95,
+        "ok": p95 is not None and len(first) == n and p95 <= BURST_P95_S,
+    }
+
+
+def _burst_main(n: int, window_s: float, step_ms: float, json_path: Path | None) -> None:
+    from rich.console import Console
+
+    console = Console()
+    with console.status(f"{n} bots joining at once ..."):
+        row = burst(n, window_s)
+    first = ", ".join(f"{s:.2f}" for s in row["first_frame_s"])
+    console.print(
+        f"burst of {n} bots (joined within {row['joins_within_s'] or 0:.1f} s): first frame per "
+        f"bot {first} s; p50 {row['first_frame_p50_s'] or 0:.2f} s, p95 "
+        f"{row['first_frame_p95_s'] or 0:.2f} s (target <= {BURST_P95_S} s): "
+        f"{'ok' if row['ok'] else 'missed'} {row['errors'] or ''}"
+    )
+    console.print(f"plain robosuite Lift step of the same run: {step_ms:.2f} ms")
+    if json_path is not None:
+        json_path.write_text(json.dumps({"robosuite_lift_step_ms": step_ms, **row}, indent=2))
+
+
 def _ready_sessions(url: str) -> list[str]:
     sessions = _admin(url, "/api/admin/overview")["sessions"]
     return [s["session_id"] for s in sessions if s["state"] == "ready"]
@@ -244,6 +318,9 @@ def main() -> None:
     parser.add_argument("--window", type=float, default=20.0, help="seconds measured")
     parser.add_argument("--warmup", type=float, default=6.0)
     parser.add_argument("--all", action="store_true", help="go on after the first miss")
+    parser.add_argument(
+        "--burst", type=int, help="N bots joining at once, N slots kept warm (the capacity)"
+    )
     parser.add_argument("--json", type=Path)
     parser.add_argument("--plot", type=Path, default=Path(__file__).parent / "capacity.png")
     parser.add_argument("--bot", help=argparse.SUPPRESS)
@@ -263,6 +340,9 @@ def main() -> None:
     console = Console()
     step_ms = robosuite_lift_step_ms()
     console.print(f"plain robosuite Lift step: {step_ms:.2f} ms")
+    if args.burst:
+        _burst_main(args.burst, args.window, step_ms, args.json)
+        return
     rows = []
     for n in [int(x) for x in args.sessions.split(",")]:
         with console.status(f"{n} bots through the coordinator ..."):

@@ -91,6 +91,9 @@ def test_a_cold_start_is_counted_down_and_the_join_page_told(tmp_path):
         api.client.delete(f"/api/sessions/{view['session_id']}", headers=api.auth(token))
         robot = client.get("/api/campaigns/default").json()["robot"]
         assert 0.9 <= robot["total_s"] <= 3.0, f"the start measured (about 1 s): {robot}"
+        served = client.get("/views.json").json()  # what the pages check these against
+        assert served["SessionView"]["properties"]["preparing"]
+        assert served["CampaignView"]["properties"]["robot"]
 
 
 class CountingLauncher(FakeLauncher):

@@ -1,10 +1,13 @@
 // What the join and teleop pages say while a robot is being prepared (web/static/preparing.js),
-// for the coordinator's estimates ({eta_s, total_s}: RobotPreparation in coord/api/schemas.py).
+// for the coordinator's estimates ({eta_s, total_s}: RobotPreparation in coord/api/schemas.py,
+// served with the views at /views.json).
 
 import assert from "node:assert/strict";
 import { test } from "node:test";
 
 import { preparingText, progressOf, remainingS, showPreparing } from "../../src/crowdteleop/web/static/preparing.js";
+import { compile } from "../../src/crowdteleop/web/static/schema.js";
+import { python } from "./python.mjs";
 
 test("an estimate is said in whole seconds, and counts down between answers", () => {
   const estimate = { eta_s: 8.4, total_s: 10 };
@@ -26,4 +29,14 @@ test("the progress bar fills with the start and hides once a robot is ready", ()
   assert.deepEqual(bar, { hidden: false, value: 5, max: 10 });
   showPreparing(bar, null);
   assert.equal(bar.hidden, true);
+});
+
+test("the estimates are checked against the views' schema the coordinator serves", () => {
+  const source = "import json; from crowdteleop.coord.api.schemas import page_views_schema; print(json.dumps(page_views_schema()))";
+  const schemas = JSON.parse(python(["-c", source]));
+  const robot = compile({ $defs: schemas.CampaignView.$defs, ...schemas.CampaignView.properties.robot });
+  assert.deepEqual(robot({ eta_s: 4.2, total_s: 10 }), []);
+  assert.deepEqual(robot(null), [], "null: every slot is held");
+  assert.notDeepEqual(robot({ eta_s: -1, total_s: 10 }), []);
+  assert.notDeepEqual(robot({ eta_s: 4.2 }), [], "the bar needs the whole start");
 });

@@ -1,4 +1,5 @@
-"""The browser pages (written in crowdteleop/web/static) and the protocol schema."""
+"""The browser pages (written in crowdteleop/web/static), the protocol schema and the schema of
+the answers the pages check."""
 
 from __future__ import annotations
 
@@ -50,6 +51,14 @@ async def protocol() -> dict[str, Any]:
     from crowdteleop.teleop.protocol import json_schema
 
     return json_schema()
+
+
+@router.get("/views.json")
+async def views() -> dict[str, Any]:
+    """The JSON Schema of the coordinator's answers the pages check (`web/static/api.js`)."""
+    from crowdteleop.coord.api.schemas import page_views_schema
+
+    return page_views_schema()
 
 
 class StaticDirectory(StaticFiles):

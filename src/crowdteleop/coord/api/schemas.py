@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -264,3 +264,14 @@ class AdminOverview(BaseModel):
     totals: dict[str, int]
     refusals: dict[str, int] = Field(description="requests refused by each limit, since start")
     restarts: int = Field(description="sessions given a new teleop server, since start")
+
+
+# The answers the worker's pages check before acting on them, by name (served at /views.json).
+PAGE_VIEWS: dict[str, type[BaseModel]] = {"SessionView": SessionView, "CampaignView": CampaignView}
+
+
+def page_views_schema() -> dict[str, Any]:
+    """The JSON Schema of each of PAGE_VIEWS, as the API serializes it."""
+    return {
+        name: model.model_json_schema(mode="serialization") for name, model in PAGE_VIEWS.items()
+    }
