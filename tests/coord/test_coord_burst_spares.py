@@ -5,6 +5,7 @@ without a cold start; and what the pages are told while a robot is prepared."""
 from __future__ import annotations
 
 import asyncio
+import os
 import re
 import time
 from datetime import datetime
@@ -12,6 +13,13 @@ from datetime import datetime
 import httpx
 import pytest
 
+from crowdteleop.coord.fleet.startup import (
+    DEFAULT_SERVER_BYTES,
+    DEFAULT_START_S,
+    StartupStats,
+    resident_bytes,
+)
+from crowdteleop.coord.service.coordinator import spread
 from tests.fixtures.coord import (
     Api,
     FakeLauncher,
@@ -132,3 +140,23 @@ def test_auto_spares_start_in_parallel_up_to_the_free_slots(tmp_path):
         time.sleep(0.5)
         assert client.get("/health").json()["spares"] == 3, "a taken spare leaves no new one"
     assert len(launcher.handles) == 4
+
+
+def test_spares_are_spread_over_the_kinds_the_campaigns_hand_out_next_first():
+    kinds = [("lift", "Sawyer", "ik-velocity"), ("stack", "Sawyer", "ik-velocity")]
+    assert spread(3, kinds) == {kinds[0]: 2, kinds[1]: 1}
+    assert spread(0, kinds) == {kinds[0]: 0, kinds[1]: 0}
+    assert spread(4, []) == {}
+
+
+def test_start_times_are_the_median_of_those_measured_and_memory_the_largest():
+    stats = StartupStats()
+    assert stats.typical_start_s() == DEFAULT_START_S
+    assert stats.remaining_s(DEFAULT_START_S + 5) == 1.0, "never 'now' before it is ready"
+    for seconds in (4.0, 9.0, 5.0):
+        stats.started(seconds)
+    assert stats.typical_start_s() == 5.0
+    assert stats.remaining_s(1.5) == 3.5
+    assert stats.server_bytes == DEFAULT_SERVER_BYTES, "nothing measured yet"
+    stats.started(6.0, pid=os.getpid())  # this process stands in for a server
+    assert stats.server_bytes != DEFAULT_SERVER_BYTES and resident_bytes(os.getpid())
