@@ -42,7 +42,8 @@ bench: $(STAMP)
 ## Refresh the README's pictures (docs/screenshots/) with the browser end-to-end tests.
 screenshots: $(STAMP)
 	CROWDTELEOP_SCREENSHOTS=docs/screenshots $(PY) -m pytest -q tests/e2e/test_web_e2e.py tests/e2e/test_phone_xr.py \
-		tests/e2e/test_phone_camera.py tests/e2e/test_practice_page.py tests/e2e/test_vr_mode.py
+		tests/e2e/test_phone_camera.py tests/e2e/test_practice_page.py tests/e2e/test_vr_mode.py \
+		tests/e2e/test_phone_layouts.py
 
 system-deps:
 	bash scripts/system-deps.sh test

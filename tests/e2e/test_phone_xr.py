@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,10 +24,10 @@ from tests.fixtures.phone_page import (
     robot_for_a_phone,
     sample_hand,
 )
+from tests.fixtures.xr_phone import EMULATED_PHONE, IWER
 
 pytestmark = pytest.mark.slow
 
-IWER = Path(__file__).parents[1] / "fixtures" / "vendor" / "iwer-2.5.0.min.js"
 CAMPAIGN = {
     "name": "xr",
     "title": "Phone AR",
@@ -36,52 +35,6 @@ CAMPAIGN = {
     "demos_required": 5,
     "time_limit_s": 600,
 }
-# The emulated phone and Chrome's DOM overlay, installed before the page's scripts run.
-EMULATED_PHONE = """
-(() => {
-  const device = new IWER.XRDevice({
-    name: "Emulated Android phone", controllerConfig: undefined,
-    supportedSessionModes: ["inline", "immersive-ar"],
-    supportedFeatures: ["viewer", "local", "dom-overlay"],
-    supportedFrameRates: [60], isSystemKeyboardSupported: false, internalNominalFrameRate: 60,
-  });
-  device.installRuntime({ forceInstall: true });
-  window.emulatedPhone = device;
-  window.xrRequests = [];
-  window.trackingLost = false;
-  const getViewerPose = XRFrame.prototype.getViewerPose;
-  XRFrame.prototype.getViewerPose = function (space) {
-    return window.trackingLost ? null : getViewerPose.call(this, space);
-  };
-  const requestSession = navigator.xr.requestSession.bind(navigator.xr);
-  navigator.xr.requestSession = async (mode, init = {}) => {
-    const root = init.domOverlay && init.domOverlay.root;
-    window.xrRequests.push({ mode, required: init.requiredFeatures || [],
-      optional: init.optionalFeatures || [], overlayRoot: root ? root.id : null });
-    const session = await requestSession(mode, init);
-    if (root && (init.optionalFeatures || []).includes("dom-overlay")) {
-      Object.defineProperty(session, "domOverlayState", { value: { type: "screen" } });
-      root.style.position = "relative";
-      root.style.zIndex = "1000";  // above IWER's XR layer (999), as Chrome shows the overlay
-      let selecting = false;
-      root.addEventListener("pointerdown", (event) => {
-        const before = new Event("beforexrselect", { bubbles: true, cancelable: true });
-        event.target.dispatchEvent(before);
-        selecting = !before.defaultPrevented;
-        if (selecting) session.dispatchEvent(new Event("selectstart"));
-      }, true);
-      for (const type of ["pointerup", "pointercancel"]) {
-        root.addEventListener(type, () => {
-          if (selecting) session.dispatchEvent(new Event("selectend"));
-          selecting = false;
-        }, true);
-      }
-      session.addEventListener("end", () => { root.style.zIndex = ""; });
-    }
-    return session;
-  };
-})();
-"""
 STEPS = 60  # the path, at 30 poses a second
 PATH_ROBOT_M = np.array([0.10, 0.05, 0.05])  # forward, left, up: the hand should do the same
 PATH_YAW_DEG = 20.0
