@@ -45,7 +45,10 @@ MODES = {
         ["#motion-permission", "#start-camera", "#pad", "#lift", "#clutch", "#gripper"],
         [*STATUS, "#motion-why"],
     ),
-    "camera": (["#pad", "#lift", "#clutch", "#gripper"], [*STATUS, "#camera-view", "#camera-hint"]),
+    "camera": (
+        ["#motion-permission", "#pad", "#lift", "#clutch", "#gripper"],
+        [*STATUS, "#camera-view", "#camera-hint"],
+    ),
     "ar": (["#recentre", "#pad", "#clutch", "#gripper"], STATUS),
 }
 CAMERA_FLAGS = ("--use-fake-device-for-media-stream", "--use-fake-ui-for-media-stream")
