@@ -440,6 +440,9 @@ async def _first_robot(preparation: Preparation, settings: CoordConfig, main: An
     import asyncio
 
     typical = preparation.typical_start_s()
+    if settings.ray is not None:  # a restart takes its sessions back at once; a spare may
+        # wait for a slot of the cluster's (or another replica's spare serves)
+        return f"about {typical:.0f} s unless a warm spare is up (Ray: started in the background)"
     if settings.spare_servers != 0:
         print(f"warming the first robot (a start takes about {typical:.0f} s)…", flush=True)
     waiting = asyncio.create_task(preparation.first_robot(settings.teleop_start_timeout_s))
