@@ -31,7 +31,7 @@ from _measure import (
     release_memory,
     size_key,
 )
-from crowdteleop.tasks import TASKS
+from crowdteleop.tasks import task_names
 
 app = typer.Typer(add_completion=False)
 TABLE_WIDTH = 160  # when not writing to a terminal, don't squeeze the table into 80 columns
@@ -44,10 +44,10 @@ def _console() -> Console:
 
 def _parse_tasks(text: str) -> list[str]:
     tasks = [name.strip() for name in text.split(",") if name.strip()]
-    unknown = [name for name in tasks if name not in TASKS]
+    unknown = [name for name in tasks if name not in task_names()]
     if unknown or not tasks:
         raise typer.BadParameter(
-            f"unknown task(s) {', '.join(unknown) or '(none)'}; choose from: {', '.join(TASKS)}"
+            f"unknown task(s) {', '.join(unknown) or '(none)'}; choose from: {', '.join(task_names())}"
         )
     return tasks
 
@@ -164,7 +164,7 @@ def run(tasks: list[str], options: BenchOptions) -> list[TaskResult]:
 
 @app.command()
 def main(
-    tasks: Annotated[str, typer.Option(help="comma-separated task names")] = ",".join(TASKS),
+    tasks: Annotated[str, typer.Option(help="comma-separated task names")] = ",".join(task_names()),
     repeats: Annotated[int, typer.Option(min=1, help="runs per measurement (median)")] = 5,
     steps: Annotated[int, typer.Option(min=1, help="control steps per run")] = 100,
     frames: Annotated[int, typer.Option(min=1, help="rendered frames per run")] = 10,

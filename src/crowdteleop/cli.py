@@ -18,7 +18,7 @@ from typer.core import TyperGroup
 
 from crowdteleop.coord.cli import serve  # typer only: its imports are inside the command
 from crowdteleop.errors import CrowdteleopError
-from crowdteleop.tasks import TASKS
+from crowdteleop.tasks import task_names
 from crowdteleop.vocab import ControllerName
 
 if TYPE_CHECKING:  # `crowdteleop --help` loads no simulator
@@ -32,6 +32,10 @@ DEFERRED_GROUPS = {
         "Build, replay, summarize and export demonstration datasets.",
     ),
     "learn": ("crowdteleop.learn.cli:app", "Train policies on datasets and evaluate them."),
+    "tasks": (
+        "crowdteleop.taskcheck.cli:app",
+        "List the tasks (built-in and plug-ins'), and check a task's fast path.",
+    ),
     "node": (
         "crowdteleop.coord.node:app",
         "Join this machine to the Ray cluster that runs teleop servers.",
@@ -74,15 +78,6 @@ app = typer.Typer(
     cls=CrowdteleopCommands,
 )
 console = Console()
-
-
-@app.command()
-def tasks() -> None:
-    """List the tasks workers can be given."""
-    table = Table("task", "backend", "time limit", "instruction")
-    for spec in TASKS.values():
-        table.add_row(spec.name, spec.backend, f"{spec.time_limit_s:.0f} s", spec.instruction)
-    console.print(table)
 
 
 @app.command()
@@ -269,8 +264,8 @@ def _crowd(
     from crowdteleop.crowd.report import crowd_table, summary, write_json
     from crowdteleop.crowd.worker import CrowdSettings, run_crowd
 
-    if task is not None and task not in TASKS:
-        console.print(f"[red]error:[/red] unknown task {task!r}; known: {', '.join(TASKS)}")
+    if task is not None and task not in task_names():
+        console.print(f"[red]error:[/red] unknown task {task!r}; known: {', '.join(task_names())}")
         raise typer.Exit(2)
     settings = CrowdSettings(
         coordinator, admin_token, campaign, task, session_timeout_s=timeout, phone_every=phone_every

@@ -8,10 +8,10 @@ import pytest
 
 from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.sim.interface import Simulation
-from crowdteleop.tasks import TASKS
+from crowdteleop.tasks import task_names
 from tests.fixtures.motion import arm_motion
 
-ALL_TASKS = list(TASKS)
+ALL_TASKS = task_names()
 
 
 @pytest.fixture(params=ALL_TASKS, scope="module")

@@ -129,6 +129,11 @@ class RobosuiteReplayer:
         config = SimConfig(task=task, action_mode=control.action_mode)
         return cls(EnvArgs.of(config, robosuite_version()), mjcf_xml)
 
+    @property
+    def env(self) -> Any:
+        """The plain robosuite environment (e.g. to time its step, or render its picture)."""
+        return self._env
+
     def close(self) -> None:
         self._env.close()
 

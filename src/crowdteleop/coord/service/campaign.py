@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import AnyHttpUrl, BaseModel, ConfigDict, Field, field_validator
+from pydantic import AnyHttpUrl, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from crowdteleop.recording.metadata import RegionName
-from crowdteleop.tasks import TASKS
+from crowdteleop.tasks import ROBOSUITE_ARMS, get_task, task_names
 from crowdteleop.vocab import WORKER_DEVICES, ControllerName, WorkerDevice
 
 NAME_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
@@ -94,10 +95,30 @@ class CampaignConfig(BaseModel):
     @field_validator("tasks")
     @classmethod
     def _known_tasks(cls, tasks: list[str]) -> list[str]:
-        unknown = [task for task in tasks if task not in TASKS]
+        known = task_names()
+        unknown = [task for task in tasks if task not in known]
         if unknown:
-            raise ValueError(f"unknown task(s) {unknown}; known: {sorted(TASKS)}")
+            raise ValueError(f"unknown task(s) {unknown}; known: {sorted(known)}")
         return tasks
+
+    @model_validator(mode="after")
+    def _robots_fit_tasks(self) -> CampaignConfig:
+        """Every (task, robot) pair `assignment` hands out must build: a robosuite task takes
+        a single-arm robosuite robot, and a task that names its robots takes only those."""
+        pairs = {self.assignment(i)[:2] for i in range(math.lcm(len(self.tasks), len(self.robots)))}
+        for task_name, robot in sorted(pairs):
+            task = get_task(task_name)
+            if task.backend == "robosuite" and robot not in ROBOSUITE_ARMS:
+                raise ValueError(
+                    f"robot {robot!r} is not a single-arm robosuite robot "
+                    f"({', '.join(ROBOSUITE_ARMS)}); task {task_name!r} needs one"
+                )
+            if task.robots and robot not in task.robots:
+                raise ValueError(
+                    f"robot {robot!r} does not fit task {task_name!r}: it takes "
+                    f"{', '.join(task.robots)} (sessions pair tasks and robots in turn)"
+                )
+        return self
 
     def assignment(self, index: int) -> tuple[str, str, str]:
         """(task, robot, controller) for the campaign's `index`-th session."""

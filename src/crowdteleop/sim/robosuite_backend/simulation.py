@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
-from crowdteleop.errors import InvalidStateError, UnknownRobotError
+from crowdteleop.errors import ConfigError, InvalidStateError, UnknownRobotError
 from crowdteleop.provenance.controllers import CompositeController, arm_controller
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, touching
@@ -21,7 +21,10 @@ from crowdteleop.sim.fastrender import FastSceneRenderer
 from crowdteleop.sim.mujoco_data import flat_state, pose_from_matrix
 from crowdteleop.sim.robosuite_backend import fast_model, model_fixes, tasks
 from crowdteleop.sim.robosuite_backend.fast_control import ArmLayout, FoldedArm
+from crowdteleop.sim.robosuite_backend.fast_fit import fast_path_obstacles
 from crowdteleop.sim.robosuite_backend.fast_step import FastStepper, finger_direction
+from crowdteleop.sim.robosuite_backend.judge import TaskJudge
+from crowdteleop.sim.robosuite_backend.plain_step import PlainStepper
 from crowdteleop.sim.types import (
     ActionSpec,
     ContactEvent,
@@ -34,47 +37,38 @@ from crowdteleop.sim.types import (
     low_dim_keys,
     validate_state,
 )
-from crowdteleop.tasks import TaskSpec, get_task
+from crowdteleop.tasks import ROBOSUITE_ARMS, TaskSpec, get_task, import_env_module
 
 logging.getLogger("robosuite").setLevel(logging.ERROR)
 
 COLLISION_GEOM_GROUP = 0  # robosuite draws visual meshes (group 1) and hides collision geoms
 
-SINGLE_ARM_ROBOTS = ("Sawyer", "Panda", "UR5e", "IIWA", "Kinova3", "Jaco")
+logger = logging.getLogger(__name__)
 
 
 class RobosuiteSimulation:
     """One robosuite environment behind the `Simulation` interface."""
 
     def __init__(self, config: SimConfig) -> None:
-        import robosuite
-
-        if config.robot not in SINGLE_ARM_ROBOTS:
+        if config.robot not in ROBOSUITE_ARMS:
             raise UnknownRobotError(
-                f"unknown robot {config.robot!r}; choose one of: {', '.join(SINGLE_ARM_ROBOTS)}"
+                f"unknown robot {config.robot!r}; choose one of: {', '.join(ROBOSUITE_ARMS)}"
             )
         self.config = config
         self.task: TaskSpec = get_task(config.task)
-        control_freq = config.control_hz
+        if self.task.robots and config.robot not in self.task.robots:
+            raise UnknownRobotError(
+                f"robot {config.robot!r} does not fit task {self.task.name!r}; it takes "
+                f"{', '.join(self.task.robots)}"
+            )
         # The arm's controller, as robosuite builds it and as the fast path applies it.
         self._controller = arm_controller(
-            config.action_mode, 1.0 / control_freq, config.max_joint_speed
+            config.action_mode, 1.0 / config.control_hz, config.max_joint_speed
         )
-        self._env = robosuite.make(
-            self.task.env_name,
-            robots=config.robot,
-            controller_configs=CompositeController.of(self._controller).to_robosuite(),
-            has_renderer=False,
-            has_offscreen_renderer=False,
-            use_camera_obs=False,
-            use_object_obs=True,  # observables only: computed when `observations` asks
-            control_freq=control_freq,
-            hard_reset=False,
-            ignore_done=True,
-            horizon=10**9,
-            seed=config.model_seed,
-            **self.task.env_kwargs,
-        )
+        self._env = self._make_env()
+        self.fast_path_obstacles = fast_path_obstacles(self._env)
+        self.fast_path = self._choose_fast_path()
+        self._judge = TaskJudge(self.task, self._env)
         self._xml = ""
         self._load_fixed_model()
         self._model: mujoco.MjModel = self._env.sim.model._model
@@ -94,6 +88,58 @@ class RobosuiteSimulation:
         self._init_gripper_geometry()
         self._stepper = self._make_stepper()
         self._stepper.start_episode(self._data)
+
+    def _make_env(self) -> Any:
+        """robosuite's environment for the task, or a `ConfigError` saying why it cannot be."""
+        import robosuite
+
+        import_env_module(self.task)
+        try:
+            return robosuite.make(
+                self.task.env_name,
+                robots=self.config.robot,
+                controller_configs=CompositeController.of(self._controller).to_robosuite(),
+                has_renderer=False,
+                has_offscreen_renderer=False,
+                use_camera_obs=False,
+                use_object_obs=True,  # observables only: computed when `observations` asks
+                control_freq=self.config.control_hz,
+                hard_reset=False,
+                ignore_done=True,
+                horizon=10**9,
+                seed=self.config.model_seed,
+                **self.task.env_kwargs,
+            )
+        except Exception as error:  # robosuite raises bare Exceptions, and a task's own code
+            raise ConfigError(
+                f"task {self.task.name!r} ({self.task.source}): robosuite could not build "
+                f"{self.task.env_name!r} with robot {self.config.robot!r}: "
+                f"{type(error).__name__}: {error}"
+            ) from error
+
+    def _choose_fast_path(self) -> bool:
+        """The fast path unless the task cannot use it faithfully (or its declaration says
+        "off"); "on" with an obstacle is refused, "auto" falls back with a warning."""
+        obstacles = self.fast_path_obstacles
+        if self.task.fast_path == "off":
+            return False
+        if obstacles and self.task.fast_path == "on":
+            raise ConfigError(
+                f"task {self.task.name!r} asks for the fast path, which cannot serve it: "
+                + "; ".join(obstacles)
+            )
+        if obstacles:
+            logger.warning(
+                "task %r runs on robosuite's own path (slower): %s",
+                self.task.name,
+                "; ".join(obstacles),
+            )
+        return not obstacles
+
+    @property
+    def task_errors(self) -> int:
+        """How often the task's declared success or stage functions raised."""
+        return self._judge.errors
 
     # --- lifecycle -------------------------------------------------------------------------
     @property
@@ -124,11 +170,11 @@ class RobosuiteSimulation:
         with tasks.success_checked_once(self._env):
             reward = self._env.reward(action)
             success = self.success()
-            progress = tasks.progress(self._env, success, self._grasped)
+            progress = self._judge.progress(success, self._grasped)
         return StepResult(float(reward), success, self.contacts(), progress)
 
     def success(self) -> bool:
-        return bool(self._env._check_success())
+        return self._judge.success()
 
     # --- state -----------------------------------------------------------------------------
     def get_state(self) -> npt.NDArray[np.float64]:
@@ -139,6 +185,8 @@ class RobosuiteSimulation:
         state = validate_state(state, 1 + self._model.nq + self._model.nv)
         self._env.sim.set_state_from_flattened(state)
         self._env.sim.forward()
+        if isinstance(self._stepper, PlainStepper):
+            self._stepper.state_loaded()
 
     def controller_state(self) -> npt.NDArray[np.float64]:
         """robosuite's ramped finger command, kept between steps (shape (1,))."""
@@ -168,7 +216,7 @@ class RobosuiteSimulation:
 
     def progress(self) -> TaskProgress:
         with tasks.success_checked_once(self._env):
-            return tasks.progress(self._env, self.success(), self._grasped)
+            return self._judge.progress(self.success(), self._grasped)
 
     def robot_state(self) -> RobotState:
         gripper_closed = self._closed_fraction(self._data)
@@ -230,6 +278,8 @@ class RobosuiteSimulation:
 
         def fix(xml: str) -> str:
             self._xml = model_fixes.add_contact_excludes(xml, pairs)
+            if not self.fast_path:
+                return self._xml
             return fast_model.fast_physics_xml(
                 self._xml, robot.robot_model.root_body, robot.robot_joints, parked
             )
@@ -248,7 +298,9 @@ class RobosuiteSimulation:
         closed = np.abs(finger_q - self._gripper_open_q) / self._gripper_span
         return float(np.clip(np.mean(closed), 0.0, 1.0))
 
-    def _make_stepper(self) -> FastStepper:
+    def _make_stepper(self) -> FastStepper | PlainStepper:
+        if not self.fast_path:
+            return PlainStepper(self._env)
         robot, arm = self._robot, self._arm
         layout = ArmLayout(
             qpos=self._arm_qpos_index,

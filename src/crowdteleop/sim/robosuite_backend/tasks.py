@@ -17,9 +17,14 @@ from crowdteleop.sim.types import Pose, TaskProgress
 
 
 def _all_objects(env: Any) -> list[Any]:
+    """The task's objects: robosuite's own lists where it keeps them (PickPlace's also hold
+    visual stand-ins), else every object of the task's model that is not visual only."""
     if hasattr(env, "cube"):
         return [env.cube]
-    return list(getattr(env, "nuts", None) or getattr(env, "objects", []))
+    known = getattr(env, "nuts", None) or getattr(env, "objects", None)
+    if known:
+        return list(known)
+    return [obj for obj in env.model.mujoco_objects if getattr(obj, "obj_type", "all") != "visual"]
 
 
 def active_objects(env: Any) -> list[Any]:
@@ -101,6 +106,23 @@ def success_checked_once(env: Any) -> Iterator[None]:
         yield
     finally:
         del env._check_success
+
+
+def has_own_progress(env: Any) -> bool:
+    """Whether `progress` knows this environment's sub-goals (Lift, PickPlace, NutAssembly)."""
+    return (
+        hasattr(env, "cube") or hasattr(env, "objects_in_bins") or hasattr(env, "objects_on_pegs")
+    )
+
+
+def generic_progress(env: Any, instruction: str, success: bool, grasped: Grasped) -> TaskProgress:
+    """For a task that declares no stages: its instruction, what the hand holds, done."""
+    if success:
+        return TaskProgress("done", "Task done: well done!", 1, 1)
+    held = [obj.name for obj in active_objects(env) if grasped(obj)]
+    if held:
+        return TaskProgress("grasped", f"{held[0]} grasped. {instruction}", 0, 1)
+    return TaskProgress("reach", instruction, 0, 1)
 
 
 def progress(env: Any, success: bool, grasped: Grasped | None = None) -> TaskProgress:
