@@ -17,6 +17,7 @@ from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.sim.interface import Simulation
 from tests.fixtures.exclusive import EXCLUSIVE, SERIAL, room
 from tests.fixtures.schedule import SerialFirstScheduling
+from tests.fixtures.task_plugin import task_plugin_site, with_task_plugin  # noqa: F401
 
 _GUARD = pytest.StashKey[tuple[subprocess.Popen, Path]]()
 

@@ -28,13 +28,14 @@ MAY_IMPORT: dict[str, set[str]] = {
     "client": BASE | {"tasks", "sim", "control", "teleop"},
     "dataset": BASE | {"tasks", "sim", "control", "recording", "provenance"},
     "learn": BASE | {"tasks", "sim", "control", "recording", "dataset", "provenance"},
+    "taskcheck": BASE | {"tasks", "sim", "recording", "dataset", "provenance"},
     "web": set(),
     "linkemu": set(),
     "coord": BASE | {"tasks", "recording", "teleop", "web"},
     "crowd": BASE | {"tasks", "sim", "control", "teleop", "client", "coord", "linkemu"},
     "cli": BASE
     | {"tasks", "sim", "control", "recording", "teleop", "client", "dataset", "learn", "coord"}
-    | {"crowd", "linkemu"},
+    | {"crowd", "linkemu", "taskcheck"},
     "__main__": {"cli"},
     "__init__": {"gl"},
 }

@@ -121,7 +121,9 @@ class RobosuiteReplayer:
         self._site = self._env.sim.model.site_name2id(self._gripper.important_sites["grip_site"])
         joints = [self._env.sim.model.joint_name2id(j) for j in self._gripper.joints]
         self._finger_qpos = self._env.sim.model.jnt_qposadr[joints]
-        self._finger_actuators = np.array(robot._ref_joint_gripper_actuator_indexes[robot.arms[0]])
+        self._finger_actuators = np.array(
+            robot._ref_joint_gripper_actuator_indexes[robot.arms[0]], dtype=int
+        )
 
     @classmethod
     def for_task(cls, task: str, controller: ControllerName, mjcf_xml: str) -> RobosuiteReplayer:

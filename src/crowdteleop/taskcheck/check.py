@@ -173,6 +173,9 @@ def _check(sim: RobosuiteSimulation, config: SimConfig, steps: int, seed: int) -
         theirs = replayer.per_step(recording.states, np.array(actions), posture, recording.fingers)
         drift = np.linalg.norm(theirs.hands - recording.hands, axis=1)
         plain = replayer.env
+        positions, rotations = sim.body_placements()
+        plain.sim.model._model.body_pos[:] = positions  # robosuite's placements live in
+        plain.sim.model._model.body_quat[:] = rotations  # the model: compare like with like
         reference = CameraRenderer(plain.sim.model._model, (COLLISION_GEOM_GROUP,))
         camera = sim.task.default_camera
         mads, blobs = [], []
@@ -229,5 +232,5 @@ def _check(sim: RobosuiteSimulation, config: SimConfig, steps: int, seed: int) -
         picture_blob=max(blobs),
         drift_median_m=float(np.median(drift)),
         drift_max_m=float(drift.max()),
-        task_errors=sim.task_errors,
+        task_errors=sim.judge.errors,
     )

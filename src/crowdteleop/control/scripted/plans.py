@@ -4,10 +4,12 @@ later waypoints can depend on how the grasp actually went."""
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial.transform import Rotation
 
 from crowdteleop.control.scripted.waypoints import Waypoint, at, yaw_aligned, yaw_of
 from crowdteleop.errors import ConfigError
@@ -68,10 +70,33 @@ def lift(sim: ScriptedScene) -> Iterator[Waypoint]:
     yield Waypoint(at(hand.position + [0, 0, 0.15], hand.rotation), True, label="lift")
 
 
+@dataclass(frozen=True)
+class Grasp:
+    """How to take an object: the fingers close along its `axis` (radians from its x axis;
+    None: world x, for round objects), which repeats every `period`, `depth` below its origin
+    (negative: above, so the palm clears a tall object's top)."""
+
+    depth: float = 0.0
+    axis: float | None = 0.0
+    period: float = np.pi / 2
+
+
+# Extents measured from robosuite's collision meshes (half sizes, m): milk 0.02 x 0.02 x
+# 0.06-0.083, bread 0.024 x 0.02 x 0.024, cereal 0.05 x 0.015 x 0.075 (only its 3 cm side fits).
+PICK_PLACE_GRASPS = {
+    "Can": Grasp(depth=0.01, axis=None),
+    "Milk": Grasp(depth=-0.05),
+    "Bread": Grasp(axis=np.pi / 2, period=np.pi),
+    "Cereal": Grasp(depth=-0.04, axis=np.pi / 2, period=np.pi),
+}
+
+
 def pick_place(sim: ScriptedScene) -> Iterator[Waypoint]:
     name = _object_name(sim)
     home = sim.robot_state().end_effector.position
-    yield from _pick(sim, name, 0.0, np.pi / 2, grasp_depth=0.01)
+    grasp = PICK_PLACE_GRASPS[name]
+    axis = 0.0 if grasp.axis is None else yaw_of(sim.object_poses()[name]) + grasp.axis
+    yield from _pick(sim, name, axis, grasp.period, grasp_depth=grasp.depth)
     hand = sim.robot_state().end_effector
     target = sim.object_poses()[f"{name}/target"].position.copy()
     # drop on the near side of the target, within the bin's quadrant: shorter arms (Panda)
@@ -88,29 +113,69 @@ def pick_place(sim: ScriptedScene) -> Iterator[Waypoint]:
     yield Waypoint(at([*target[:2], carry_z], hand.rotation), False, 0.03, label="retreat")
 
 
+# How often a nut's hole repeats as it turns about its peg (None: round, any turn fits).
+NUT_SYMMETRY = {"RoundNut": None, "SquareNut": np.pi / 2}
+
+
 def nut_assembly(sim: ScriptedScene) -> Iterator[Waypoint]:
     name = _object_name(sim)
     nut = sim.object_poses()[name]
     # The handle sticks out along the nut's x axis: close the fingers across it.
     yield from _pick(sim, f"{name}/handle", yaw_of(nut) + np.pi / 2, np.pi)
     hand = sim.robot_state().end_effector
-    offset = sim.object_poses()[name].position - hand.position  # nut centre from the hand
-    peg = sim.object_poses()[f"{name}/target"].position
-    carry_z = peg[2] + 0.20 - offset[2]
-    over_peg = peg[:2] - offset[:2]
+    nut = sim.object_poses()[name]
+    peg = sim.object_poses()[f"{name}/target"]
+    # A square hole slides down its square peg only when turned to match it: turn the hand by
+    # the least angle that does, carrying the nut (and its offset from the hand) with it.
+    period = NUT_SYMMETRY[name]
+    turn = 0.0 if period is None else (yaw_of(peg) - yaw_of(nut) + period / 2) % period - period / 2
+    spin = Rotation.from_euler("z", turn)
+    carried = spin * hand.rotation
+    offset = spin.apply(nut.position - hand.position)  # nut centre from the hand, once turned
+    carry_z = peg.position[2] + 0.20 - offset[2]
+    over_peg = peg.position[:2] - offset[:2]
     yield Waypoint(at([*hand.position[:2], carry_z], hand.rotation), True, 0.02, label="lift")
-    yield Waypoint(at([*over_peg, carry_z], hand.rotation), True, 0.01, 0.3, label="carry")
-    low_z = peg[2] + 0.02 - offset[2]
-    yield Waypoint(at([*over_peg, low_z], hand.rotation), True, 0.015, label="lower")
-    yield Waypoint(at([*over_peg, low_z], hand.rotation), False, 0.05, 0.3, label="release")
-    yield Waypoint(at([*over_peg, carry_z], hand.rotation), False, 0.03, label="retreat")
+    yield Waypoint(at([*over_peg, carry_z], carried), True, 0.01, 0.3, label="carry")
+    low_z = peg.position[2] + 0.02 - offset[2]
+    yield Waypoint(at([*over_peg, low_z], carried), True, 0.015, label="lower")
+    yield Waypoint(at([*over_peg, low_z], carried), False, 0.05, 0.3, label="release")
+    yield Waypoint(at([*over_peg, carry_z], carried), False, 0.03, label="retreat")
+
+
+STACK_CLEARANCE_M = 0.05
+STACK_RELEASE_ABOVE_M = 0.005
+
+
+def stack(sim: ScriptedScene) -> Iterator[Waypoint]:
+    """Pick cubeA as in lift, carry it over cubeB, set it down there, let go and back off."""
+    poses = sim.object_poses()
+    table_z = poses["table"].position[2]
+    # resting on cubeB, cubeA's centre is both cubes' half heights above cubeB's centre
+    half_heights = poses["cubeA"].position[2] + poses["cubeB"].position[2] - 2 * table_z
+    yield from _pick(sim, "cubeA", yaw_of(poses["cubeA"]), np.pi / 2)
+    hand = sim.robot_state().end_effector
+    poses = sim.object_poses()
+    offset = poses["cubeA"].position - hand.position  # held cube's centre from the hand
+    rest = poses["cubeB"].position + [0.0, 0.0, half_heights] - offset
+    carry_z = rest[2] + STACK_CLEARANCE_M
+    release_z = rest[2] + STACK_RELEASE_ABOVE_M
+    yield Waypoint(at([*hand.position[:2], carry_z], hand.rotation), True, 0.02, label="lift")
+    yield Waypoint(at([*rest[:2], carry_z], hand.rotation), True, 0.01, 0.3, label="carry")
+    yield Waypoint(at([*rest[:2], release_z], hand.rotation), True, 0.006, label="lower")
+    yield Waypoint(at([*rest[:2], release_z], hand.rotation), False, 0.05, 0.4, label="release")
+    yield Waypoint(at([*rest[:2], carry_z], hand.rotation), False, 0.03, label="retreat")
 
 
 PLANS: dict[str, Plan] = {
     "lift": lift,
     "mujoco-lift": lift,
     "pick-place-can": pick_place,
+    "pick-place-milk": pick_place,
+    "pick-place-bread": pick_place,
+    "pick-place-cereal": pick_place,
     "nut-assembly-round": nut_assembly,
+    "nut-assembly-square": nut_assembly,
+    "stack": stack,
 }
 
 

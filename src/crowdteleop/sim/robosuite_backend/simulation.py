@@ -68,7 +68,7 @@ class RobosuiteSimulation:
         self._env = self._make_env()
         self.fast_path_obstacles = fast_path_obstacles(self._env)
         self.fast_path = self._choose_fast_path()
-        self._judge = TaskJudge(self.task, self._env)
+        self.judge = TaskJudge(self.task, self._env)  # public: its `errors` count
         self._xml = ""
         self._load_fixed_model()
         self._model: mujoco.MjModel = self._env.sim.model._model
@@ -136,11 +136,6 @@ class RobosuiteSimulation:
             )
         return not obstacles
 
-    @property
-    def task_errors(self) -> int:
-        """How often the task's declared success or stage functions raised."""
-        return self._judge.errors
-
     # --- lifecycle -------------------------------------------------------------------------
     @property
     def nullspace_posture(self) -> npt.NDArray[np.float64]:
@@ -170,11 +165,11 @@ class RobosuiteSimulation:
         with tasks.success_checked_once(self._env):
             reward = self._env.reward(action)
             success = self.success()
-            progress = self._judge.progress(success, self._grasped)
+            progress = self.judge.progress(success, self._grasped)
         return StepResult(float(reward), success, self.contacts(), progress)
 
     def success(self) -> bool:
-        return self._judge.success()
+        return self.judge.success()
 
     # --- state -----------------------------------------------------------------------------
     def get_state(self) -> npt.NDArray[np.float64]:
@@ -216,7 +211,7 @@ class RobosuiteSimulation:
 
     def progress(self) -> TaskProgress:
         with tasks.success_checked_once(self._env):
-            return self._judge.progress(self.success(), self._grasped)
+            return self.judge.progress(self.success(), self._grasped)
 
     def robot_state(self) -> RobotState:
         gripper_closed = self._closed_fraction(self._data)
@@ -260,6 +255,12 @@ class RobosuiteSimulation:
 
     def mjcf_xml(self) -> str:
         return self._xml
+
+    def body_placements(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """Every body's position and quaternion in its parent, as the last reset placed them:
+        robosuite places fixtures (Door's door, PickPlace's visual stand-ins) in the model,
+        not the state, so a copy of the model needs them to look the same."""
+        return self._model.body_pos.copy(), self._model.body_quat.copy()
 
     def _load_fixed_model(self) -> None:
         """Recompile robosuite's model for our fast path.

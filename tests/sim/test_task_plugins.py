@@ -1,0 +1,102 @@
+"""Tasks the platform has never seen run on the robosuite backend: a plug-in's own environment
+class and success test, robosuite tasks found generically, the fast path applied where it is
+faithful and robosuite's own step where it is not; bad declarations fail clearly."""
+
+from __future__ import annotations
+
+import re
+import sys
+
+import numpy as np
+import pytest
+
+from crowdteleop.errors import ConfigError, UnknownRobotError
+from crowdteleop.sim import SimConfig, make_simulation
+from crowdteleop.tasks import TASK_FILES_VARIABLE, catalogue
+from tests.fixtures.motion import arm_motion
+
+ODD_TASKS = """
+tasks:
+  - {name: wipe, backend: robosuite, env_name: Wipe, instruction: Wipe the table.}
+  - {name: wipe-fast, backend: robosuite, env_name: Wipe, instruction: Wipe., fast_path: "on"}
+  - {name: no-such-class, backend: robosuite, env_name: NoSuchEnv, instruction: Nothing.}
+  - {name: no-such-module, backend: robosuite, env_name: Lift, env_module: no_such_module,
+     instruction: Nothing.}
+"""
+
+
+@pytest.fixture
+def odd_tasks(tmp_path, monkeypatch):
+    path = tmp_path / "odd.yaml"
+    path.write_text(ODD_TASKS)
+    monkeypatch.setenv(TASK_FILES_VARIABLE, str(path))
+    catalogue.cache_clear()
+    yield
+    catalogue.cache_clear()
+
+
+def _drive(sim, steps: int = 10):
+    sim.reset(seed=0)
+    start = sim.robot_state().end_effector.position
+    results = [sim.step(arm_motion(sim, index)) for index in range(steps)]
+    moved = float(np.linalg.norm(sim.robot_state().end_effector.position - start))
+    return results, moved
+
+
+def test_a_plug_ins_own_environment_runs_on_the_fast_path_with_its_stages(with_task_plugin):
+    sim = make_simulation(SimConfig(task="high-lift", robot="Panda"))
+    try:
+        results, moved = _drive(sim)
+        assert sim.fast_path and sim.fast_path_obstacles == []
+        assert "crowdteleop_example_tasks.envs" in sys.modules  # its class, imported to build
+        assert moved > 0.01
+        assert results[-1].progress.message == "Reach for the cube and grasp it."
+        assert (results[-1].progress.completed, results[-1].progress.total) == (0, 2)
+        assert not results[-1].success
+        assert "cube" in sim.object_poses()
+    finally:
+        sim.close()
+
+
+def test_a_robot_the_task_does_not_take_is_refused(with_task_plugin):
+    with pytest.raises(UnknownRobotError, match=r"does not fit task 'high-lift'.*Panda"):
+        make_simulation(SimConfig(task="high-lift", robot="Jaco"))
+
+
+def test_a_success_function_that_raises_counts_and_the_session_goes_on(with_task_plugin, caplog):
+    sim = make_simulation(SimConfig(task="broken-success", robot="Panda"))
+    try:
+        results, moved = _drive(sim, steps=5)
+        assert moved > 0.005 and not any(result.success for result in results)
+        assert sim.judge.errors == 5
+        assert sum("broken on purpose" in record.message for record in caplog.records) == 1
+    finally:
+        sim.close()
+
+
+def test_a_task_running_its_own_step_code_falls_back_to_robosuites_step(odd_tasks, caplog):
+    sim = make_simulation(SimConfig(task="wipe", robot="Panda"))
+    try:
+        _, moved = _drive(sim, steps=5)
+        assert not sim.fast_path and "_post_action" in sim.fast_path_obstacles[0]
+        assert moved > 0.005
+        assert any("robosuite's own path" in record.message for record in caplog.records)
+    finally:
+        sim.close()
+
+
+def test_asking_for_the_fast_path_where_it_cannot_serve_is_refused(odd_tasks):
+    with pytest.raises(ConfigError, match=r"asks for the fast path.*_post_action"):
+        make_simulation(SimConfig(task="wipe-fast", robot="Panda"))
+
+
+@pytest.mark.parametrize(
+    ("task", "message"),
+    [
+        ("no-such-class", "robosuite could not build 'NoSuchEnv' with robot 'Panda'"),
+        ("no-such-module", "cannot import env_module 'no_such_module'"),
+    ],
+)
+def test_an_environment_that_cannot_be_built_is_a_clear_error(odd_tasks, task, message):
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        make_simulation(SimConfig(task=task, robot="Panda"))
