@@ -47,7 +47,8 @@ def _parse_tasks(text: str) -> list[str]:
     unknown = [name for name in tasks if name not in task_names()]
     if unknown or not tasks:
         raise typer.BadParameter(
-            f"unknown task(s) {', '.join(unknown) or '(none)'}; choose from: {', '.join(task_names())}"
+            f"unknown task(s) {', '.join(unknown) or '(none)'}; "
+            f"choose from: {', '.join(task_names())}"
         )
     return tasks
 
