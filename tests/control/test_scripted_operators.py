@@ -65,6 +65,30 @@ def test_operators_succeed_on_robosuites_default_arm_too(task):
     assert success_rate(task, "osc", range(10, 20), robot="Panda") >= 0.8
 
 
+# Panda, osc, success over seeds 0-7 when measured: milk 8/8, bread 6/8, cereal 6/8 (a
+# turned box may slip), square nut 5/8, stack 5/5 (seeds 0-4).
+ROBOSUITE_TASKS_SUCCESS = {
+    "pick-place-milk": 0.8,
+    "pick-place-bread": 0.6,
+    "pick-place-cereal": 0.6,
+    "nut-assembly-square": 0.4,
+    "stack": 0.8,
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", list(ROBOSUITE_TASKS_SUCCESS))
+def test_operators_complete_the_other_robosuite_tasks(task):
+    assert success_rate(task, "osc", range(5), robot="Panda") >= ROBOSUITE_TASKS_SUCCESS[task]
+
+
+@pytest.mark.slow
+def test_lift_on_another_arm():
+    """IIWA lifts 3 / 3. UR5e (Robotiq gripper: closes to 0.3 without touching the cube),
+    Kinova3 and Jaco (the hand lands ~10 cm off target while the wrist turns) do not yet."""
+    assert success_rate("lift", "osc", range(3), robot="IIWA") == 1.0
+
+
 def test_the_second_backend_is_driven_by_the_same_operator_and_controller():
     assert success_rate("mujoco-lift", "ik-velocity", range(5)) == 1.0
 

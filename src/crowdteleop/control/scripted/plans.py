@@ -86,14 +86,14 @@ class Grasp:
 PICK_PLACE_GRASPS = {
     "Can": Grasp(depth=0.01, axis=None),
     "Milk": Grasp(depth=-0.05),
-    "Bread": Grasp(axis=np.pi / 2, period=np.pi),
+    "Bread": Grasp(),
     "Cereal": Grasp(depth=-0.04, axis=np.pi / 2, period=np.pi),
 }
 
 
 def pick_place(sim: ScriptedScene) -> Iterator[Waypoint]:
     name = _object_name(sim)
-    home = sim.robot_state().end_effector.position
+    home = sim.robot_state().end_effector
     grasp = PICK_PLACE_GRASPS[name]
     axis = 0.0 if grasp.axis is None else yaw_of(sim.object_poses()[name]) + grasp.axis
     yield from _pick(sim, name, axis, grasp.period, grasp_depth=grasp.depth)
@@ -101,16 +101,17 @@ def pick_place(sim: ScriptedScene) -> Iterator[Waypoint]:
     target = sim.object_poses()[f"{name}/target"].position.copy()
     # drop on the near side of the target, within the bin's quadrant: shorter arms (Panda)
     # cannot stretch to its centre with the can held high
-    toward_home = home[:2] - target[:2]
+    toward_home = home.position[:2] - target[:2]
     target[:2] += DROP_NEAR_SIDE_M * toward_home / max(float(np.linalg.norm(toward_home)), 1e-9)
     carry_z = target[2] + 0.30
+    # carry with the hand turned back as it started: a wrist turned far to grasp (a cereal box
+    # across its thin side) cannot reach the far bins
+    upright = home.rotation
     yield Waypoint(at([*hand.position[:2], carry_z], hand.rotation), True, 0.03, label="lift")
-    yield Waypoint(at([*target[:2], carry_z], hand.rotation), True, 0.02, label="carry")
-    yield Waypoint(at([*target[:2], target[2] + 0.17], hand.rotation), True, 0.02, label="lower")
-    yield Waypoint(
-        at([*target[:2], target[2] + 0.17], hand.rotation), False, 0.05, 0.4, label="drop"
-    )
-    yield Waypoint(at([*target[:2], carry_z], hand.rotation), False, 0.03, label="retreat")
+    yield Waypoint(at([*target[:2], carry_z], upright), True, 0.02, label="carry")
+    yield Waypoint(at([*target[:2], target[2] + 0.17], upright), True, 0.02, label="lower")
+    yield Waypoint(at([*target[:2], target[2] + 0.17], upright), False, 0.05, 0.4, label="drop")
+    yield Waypoint(at([*target[:2], carry_z], upright), False, 0.03, label="retreat")
 
 
 # How often a nut's hole repeats as it turns about its peg (None: round, any turn fits).
@@ -120,15 +121,19 @@ NUT_SYMMETRY = {"RoundNut": None, "SquareNut": np.pi / 2}
 def nut_assembly(sim: ScriptedScene) -> Iterator[Waypoint]:
     name = _object_name(sim)
     nut = sim.object_poses()[name]
+    start_yaw = yaw_of(sim.robot_state().end_effector)
     # The handle sticks out along the nut's x axis: close the fingers across it.
     yield from _pick(sim, f"{name}/handle", yaw_of(nut) + np.pi / 2, np.pi)
     hand = sim.robot_state().end_effector
     nut = sim.object_poses()[name]
     peg = sim.object_poses()[f"{name}/target"]
-    # A square hole slides down its square peg only when turned to match it: turn the hand by
-    # the least angle that does, carrying the nut (and its offset from the hand) with it.
-    period = NUT_SYMMETRY[name]
-    turn = 0.0 if period is None else (yaw_of(peg) - yaw_of(nut) + period / 2) % period - period / 2
+    # A square hole slides down its square peg only when turned to match it: of the turns that
+    # do, take the one leaving the wrist nearest its start (a wrist turned further stalls).
+    turn = 0.0
+    if (period := NUT_SYMMETRY[name]) is not None:
+        turn = yaw_of(peg) - yaw_of(nut)
+        wrist = yaw_of(hand) + turn - start_yaw
+        turn -= period * round(((wrist + np.pi) % (2 * np.pi) - np.pi) / period)
     spin = Rotation.from_euler("z", turn)
     carried = spin * hand.rotation
     offset = spin.apply(nut.position - hand.position)  # nut centre from the hand, once turned
