@@ -30,4 +30,4 @@ def test_a_pair_that_cannot_build_is_refused_with_its_reason(tasks, robots, mess
 def test_a_robot_a_plug_in_task_does_not_take_is_refused(with_task_plugin):
     with pytest.raises(ValidationError, match="robot 'Jaco' does not fit task 'high-lift'"):
         CampaignConfig(tasks=["high-lift"], robots=["Jaco"])
-    assert CampaignConfig(tasks=["high-lift", "lift"], robots=["UR5e", "Jaco"])
+    assert CampaignConfig(tasks=["high-lift", "lift"], robots=["IIWA", "Jaco"])

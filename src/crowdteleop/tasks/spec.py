@@ -58,6 +58,9 @@ class TaskSpec:
     success: str | None = None  # reference to f(env) -> bool; default: robosuite's own
     stages: tuple[Stage, ...] = ()
     fast_path: FastPath = "auto"  # "auto": the fast path where its checks say it is faithful
+    # How the scripted operator (bots, tests) does it: a built-in plan's name ("lift",
+    # "pick-place", "nut-assembly", "stack") or a reference to a plan of the task's own.
+    operator_plan: str | None = None
     source: str = "built-in"  # where the declaration came from, for listings and errors
 
     def __post_init__(self) -> None:
@@ -84,6 +87,9 @@ def declaration_problems(task: TaskSpec) -> list[str]:
     for reference in references:
         if reference is not None and not REFERENCE_PATTERN.match(reference):
             problems.append(f"{reference!r} is not a reference 'package.module:function'")
+    plan = task.operator_plan
+    if plan is not None and ":" in plan and not REFERENCE_PATTERN.match(plan):
+        problems.append(f"operator_plan {plan!r} is not a plan's name or 'package.module:plan'")
     if task.env_module is not None and not re.match(r"^[A-Za-z_][\w.]*$", task.env_module):
         problems.append(f"env_module {task.env_module!r} is not a module name")
     return problems

@@ -15,6 +15,7 @@ from crowdteleop.control.scripted.waypoints import Waypoint, at, yaw_aligned, ya
 from crowdteleop.errors import ConfigError
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.types import Pose, RobotState
+from crowdteleop.tasks import get_task, resolve
 
 
 class ScriptedScene(Protocol):
@@ -184,10 +185,32 @@ PLANS: dict[str, Plan] = {
 }
 
 
+# The plans a task declared elsewhere may name (`TaskSpec.operator_plan`).
+NAMED_PLANS: dict[str, Plan] = {
+    "lift": lift,
+    "pick-place": pick_place,
+    "nut-assembly": nut_assembly,
+    "stack": stack,
+}
+
+
 def plan_for(task: str) -> Plan:
-    try:
+    """The built-in task's plan, or the one its declaration names (by name or reference)."""
+    if task in PLANS:
         return PLANS[task]
+    declared = get_task(task).operator_plan
+    if declared is None:
+        raise ConfigError(
+            f"no scripted operator for task {task!r}: declare its operator_plan (one of "
+            f"{', '.join(NAMED_PLANS)}, or 'package.module:plan'); built-in: {', '.join(PLANS)}"
+        )
+    if ":" in declared:
+        plan: Plan = resolve(declared)
+        return plan
+    try:
+        return NAMED_PLANS[declared]
     except KeyError:
         raise ConfigError(
-            f"no scripted operator for task {task!r}; available: {', '.join(PLANS)}"
+            f"task {task!r} names operator_plan {declared!r}; choose one of "
+            f"{', '.join(NAMED_PLANS)} or 'package.module:plan'"
         ) from None
