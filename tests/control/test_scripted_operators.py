@@ -83,10 +83,15 @@ def test_operators_complete_the_other_robosuite_tasks(task):
 
 
 @pytest.mark.slow
-def test_lift_on_another_arm():
-    """IIWA lifts 3 / 3. UR5e (Robotiq gripper: closes to 0.3 without touching the cube),
-    Kinova3 and Jaco (the hand lands ~10 cm off target while the wrist turns) do not yet."""
-    assert success_rate("lift", "osc", range(3), robot="IIWA") == 1.0
+@pytest.mark.parametrize(
+    ("robot", "controller"),
+    [("IIWA", "osc"), ("UR5e", "osc"), ("Kinova3", "ik-velocity"), ("Jaco", "ik-velocity")],
+)
+def test_lift_on_the_other_arms(robot, controller):
+    """3 / 3 each, on the platform's grippers (`PLATFORM_GRIPPERS`): with robosuite's own,
+    UR5e and Kinova3 (Robotiq85, robosuite#772) and Jaco (three fingers, 0.3 N) lift 0 / 3.
+    Jaco through the OSC also 0 / 3: left for now (docs/tasks.md)."""
+    assert success_rate("lift", controller, range(3), robot=robot) == 1.0
 
 
 def test_the_second_backend_is_driven_by_the_same_operator_and_controller():

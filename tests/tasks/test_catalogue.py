@@ -103,7 +103,6 @@ def test_an_installed_packages_entry_point_adds_its_tasks(with_task_plugin):
     task = get_task("high-lift")
     assert task.env_module == "crowdteleop_example_tasks.envs"
     assert task.source == "entry point 'example' (crowdteleop_example_tasks:TASKS)"
-    assert "crowdteleop_example_tasks.envs" not in sys.modules, "no environment code loaded"
     assert catalogue().problems == ()
 
 
@@ -124,3 +123,20 @@ def test_crowdteleop_tasks_lists_a_plug_in_in_a_new_process(task_plugin_site, tm
     ).stdout
     assert "high-lift" in listing and "entry point 'example'" in listing
     assert "stack" in listing and "left out" in listing and "bad.yaml" in listing
+
+
+def test_reading_the_catalogue_imports_no_simulator_and_no_plug_in_code(task_plugin_site):
+    """The coordinator reads the catalogue: a plug-in's environment stays unimported there."""
+    probe = (
+        "import sys; from crowdteleop.tasks import get_task; get_task('high-lift'); "
+        "print(sorted(m for m in ('crowdteleop_example_tasks.envs', 'robosuite', 'mujoco') "
+        "if m in sys.modules))"
+    )
+    loaded = subprocess.run(
+        [sys.executable, "-c", probe],
+        env={"PYTHONPATH": str(task_plugin_site), "PATH": "/usr/bin:/bin"},
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    assert loaded == "[]"

@@ -60,6 +60,8 @@ class SimSettings(Protocol):
     def control_hz(self) -> float: ...
     @property
     def max_joint_speed(self) -> float: ...
+    @property
+    def gripper_type(self) -> str | None: ...
 
 
 class _AsWritten(BaseModel):
@@ -112,10 +114,12 @@ class EnvArgs(_AsWritten):
         if task.backend != "robosuite":
             return cls(env_name=task.env_name, env_kwargs=EnvKwargs(robots=[sim.robot]))
         arm = arm_controller(sim.action_mode, 1.0 / sim.control_hz, sim.max_joint_speed)
+        gripper = {} if sim.gripper_type is None else {"gripper_types": sim.gripper_type}
         kwargs = EnvKwargs(
             robots=[sim.robot],
             controller_configs=CompositeController.of(arm),
             control_freq=sim.control_hz,
+            **gripper,
             **task.env_kwargs,
         )
         return cls(env_name=task.env_name, env_kwargs=kwargs, env_version=env_version)

@@ -5,9 +5,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
-from crowdteleop.tasks import get_task
+from crowdteleop.tasks import PLATFORM_GRIPPERS, ROBOSUITE_DEFAULT_GRIPPER, get_task
 from crowdteleop.vocab import ActionMode
 
 
@@ -34,6 +34,14 @@ class SimConfig(BaseModel):
         "still, and the hand cannot reach Lift's cube. False keeps robosuite's own model "
         "exactly, as `robosuite.make(**env_args)` builds it (docs/dataset.md)",
     )
+    gripper: str | None = Field(
+        None,
+        pattern=r"^[A-Za-z][A-Za-z0-9]*$",
+        validate_default=True,
+        description="robosuite gripper class on the arm (e.g. PandaGripper, Robotiq140Gripper); "
+        "'default': robosuite's default for the robot; unset: the platform's choice, robosuite's "
+        "default except where it cannot grasp (crowdteleop.tasks.PLATFORM_GRIPPERS)",
+    )
     model_seed: int = Field(
         0,
         ge=0,
@@ -46,6 +54,20 @@ class SimConfig(BaseModel):
         """The config a recording was made with: a key it lacks takes the value it had then."""
         return cls(**(RECORDED_BEFORE_KEY | dict(recorded)))
 
+    @property
+    def gripper_type(self) -> str | None:
+        """robosuite's ``gripper_types`` for this arm; None: robosuite's default."""
+        return None if self.gripper == ROBOSUITE_DEFAULT_GRIPPER else self.gripper
+
+    @field_validator("gripper")
+    @classmethod
+    def _name_the_gripper(cls, gripper: str | None, info: ValidationInfo) -> str:
+        """Unset becomes the platform's choice for the robot, so a recorded config names the
+        gripper its episodes were recorded with, whatever the platform chooses later."""
+        if gripper is not None:
+            return gripper
+        return PLATFORM_GRIPPERS.get(info.data.get("robot", ""), ROBOSUITE_DEFAULT_GRIPPER)
+
     @field_validator("task")
     @classmethod
     def _task_exists(cls, name: str) -> str:
@@ -54,4 +76,7 @@ class SimConfig(BaseModel):
 
 
 # Fields added after recordings began, with the behaviour recordings made before them had.
-RECORDED_BEFORE_KEY: dict[str, Any] = {"gripper_ramp": False}
+RECORDED_BEFORE_KEY: dict[str, Any] = {
+    "gripper_ramp": False,
+    "gripper": ROBOSUITE_DEFAULT_GRIPPER,
+}

@@ -14,7 +14,9 @@ from crowdteleop.tasks.catalogue import (
     tasks_in_file,
 )
 from crowdteleop.tasks.spec import (
+    PLATFORM_GRIPPERS,
     ROBOSUITE_ARMS,
+    ROBOSUITE_DEFAULT_GRIPPER,
     Backend,
     FastPath,
     Stage,
@@ -25,7 +27,9 @@ from crowdteleop.tasks.spec import (
 
 __all__ = [
     "ENTRY_POINT_GROUP",
+    "PLATFORM_GRIPPERS",
     "ROBOSUITE_ARMS",
+    "ROBOSUITE_DEFAULT_GRIPPER",
     "TASK_FILES_VARIABLE",
     "Backend",
     "Catalogue",

@@ -23,6 +23,16 @@ FastPath = Literal["auto", "on", "off"]
 # The single-arm robots robosuite 1.5 ships, each with its default gripper.
 ROBOSUITE_ARMS = ("Sawyer", "Panda", "UR5e", "IIWA", "Kinova3", "Jaco")
 
+# The gripper a robot gets where robosuite's default cannot grasp in robosuite 1.5: its
+# Robotiq85 (UR5e's, Kinova3's) never closes on an object (robosuite#772), and Jaco's
+# three-finger hand closes on -1 at 1% per step with 0.3 N. `SimConfig.gripper` overrides.
+PLATFORM_GRIPPERS = {
+    "UR5e": "Robotiq140Gripper",
+    "Kinova3": "Robotiq140Gripper",
+    "Jaco": "Robotiq140Gripper",
+}
+ROBOSUITE_DEFAULT_GRIPPER = "default"  # `SimConfig.gripper`: robosuite's own choice
+
 NAME_PATTERN = re.compile(r"^[a-z0-9][a-z0-9-]{0,62}$")
 REFERENCE_PATTERN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 

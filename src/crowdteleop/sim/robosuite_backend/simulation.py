@@ -94,6 +94,7 @@ class RobosuiteSimulation:
         import robosuite
 
         import_env_module(self.task)
+        gripper = self.config.gripper_type
         try:
             return robosuite.make(
                 self.task.env_name,
@@ -108,6 +109,7 @@ class RobosuiteSimulation:
                 ignore_done=True,
                 horizon=10**9,
                 seed=self.config.model_seed,
+                **({} if gripper is None else {"gripper_types": gripper}),
                 **self.task.env_kwargs,
             )
         except Exception as error:  # robosuite raises bare Exceptions, and a task's own code
