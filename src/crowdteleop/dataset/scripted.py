@@ -95,6 +95,7 @@ def record_scripted_episode(
     metadata = rig.metadata.model_copy(
         update={
             "reset_seed": seed,
+            "model_xml": sim.mjcf_xml(),  # with the bodies this reset placed (Door's door)
             "controller_state_at_start": [float(v) for v in sim.controller_state()],
         }
     ).to_record()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
 
 
 def with_arena(xml: str, memory: str) -> str:
@@ -70,6 +71,35 @@ def portable(xml: str) -> str:
     return _ASSET_FILE.sub(r"\1", xml)
 
 
+def with_body_placements(
+    xml: str, placements: Mapping[str, tuple[Sequence[float], Sequence[float]]]
+) -> str:
+    """The same model with the named bodies at (position, quaternion wxyz) in their parents:
+    where a reset placed them (robosuite places fixtures such as Door's door in the model, not
+    the state, so a recorded model file must carry them to rebuild the episode's scene)."""
+    root = ET.fromstring(xml)
+    for body in root.iter("body"):
+        placed = placements.get(body.get("name", ""))
+        if placed is not None:
+            position, quaternion = placed
+            body.set("pos", " ".join(f"{v:.12g}" for v in position))
+            body.set("quat", " ".join(f"{v:.12g}" for v in quaternion))
+            for attribute in ("euler", "axisangle", "xyaxes", "zaxis"):
+                body.attrib.pop(attribute, None)
+    return ET.tostring(root, encoding="unicode")
+
+
+def _placement_free(xml: str) -> str:
+    root = ET.fromstring(xml)
+    for body in root.iter("body"):
+        for attribute in ("pos", "quat", "euler", "axisangle", "xyaxes", "zaxis"):
+            body.attrib.pop(attribute, None)
+    return ET.tostring(root, encoding="unicode")
+
+
 def same_model(recorded: str, rebuilt: str) -> bool:
-    """Whether a rebuilt scene is the one a recording names, wherever each was installed."""
-    return recorded == rebuilt or portable(recorded) == portable(rebuilt)
+    """Whether a rebuilt scene is the one a recording names, wherever each was installed and
+    wherever its episode's reset placed the bodies (`with_body_placements`)."""
+    if recorded == rebuilt or portable(recorded) == portable(rebuilt):
+        return True
+    return _placement_free(portable(recorded)) == _placement_free(portable(rebuilt))

@@ -77,6 +77,21 @@ BUILTIN_TASKS: tuple[TaskSpec, ...] = (
         ),
     ),
     TaskSpec(
+        "door",
+        "robosuite",
+        "Door",
+        "Turn the door's handle down and pull the door open.",
+        time_limit_s=90.0,
+        stages=(
+            Stage("reach", "Reach for the door's handle and grasp it.", f"{_STAGES}:holds_handle"),
+            Stage(
+                "open",
+                "Handle grasped: turn it down and pull the door open.",
+                f"{_STAGES}:door_open",
+            ),
+        ),
+    ),
+    TaskSpec(
         "mujoco-lift",
         "mujoco",
         "lift",

@@ -328,7 +328,9 @@ class TeleopSession:
         episode's metadata: osc episodes re-simulate exactly only from a reset with it."""
         self._seed += 1
         self.teleop.reset(self._seed)
-        self.tracker.metadata = self.tracker.metadata.model_copy(update={"reset_seed": self._seed})
+        # robosuite places some bodies in the model (Door's door), so the model file follows
+        update = {"reset_seed": self._seed, "model_xml": self.teleop.sim.mjcf_xml()}
+        self.tracker.metadata = self.tracker.metadata.model_copy(update=update)
         self.board.release_clutch()
         self.practice.scene_reset()
 

@@ -15,6 +15,7 @@ import numpy.typing as npt
 
 from crowdteleop.errors import ConfigError, InvalidStateError, UnknownRobotError
 from crowdteleop.provenance.controllers import CompositeController, arm_controller
+from crowdteleop.sim import mjcf
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, touching
 from crowdteleop.sim.fastrender import FastSceneRenderer
@@ -72,6 +73,7 @@ class RobosuiteSimulation:
         self._xml = ""
         self._load_fixed_model()
         self._model: mujoco.MjModel = self._env.sim.model._model
+        self._loaded_placements = self.body_placements()  # as the XML puts the bodies
         self._data: mujoco.MjData = self._env.sim.data._data
         self._robot = self._env.robots[0]
         self._arm = self._robot.arms[0]
@@ -256,7 +258,17 @@ class RobosuiteSimulation:
         )
 
     def mjcf_xml(self) -> str:
-        return self._xml
+        """robosuite's model, with the bodies the last reset placed where it placed them."""
+        positions, rotations = self.body_placements()
+        loaded_positions, loaded_rotations = self._loaded_placements
+        moved = np.flatnonzero(
+            np.any(positions != loaded_positions, axis=1)
+            | np.any(rotations != loaded_rotations, axis=1)
+        )
+        if moved.size == 0:
+            return self._xml
+        placements = {self._model.body(i).name: (positions[i], rotations[i]) for i in moved}
+        return mjcf.with_body_placements(self._xml, placements)
 
     def body_placements(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """Every body's position and quaternion in its parent, as the last reset placed them:
