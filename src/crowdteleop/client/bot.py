@@ -21,6 +21,11 @@ from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.types import Pose, RobotState
 from crowdteleop.teleop.protocol import PrivilegedState
 
+# Steps a finished plan waits for its episode to end before asking for a new scene: past the
+# server's success hold (`TeleopConfig.success_hold_steps`, 10), since some tasks succeed only
+# once the hand has let go (stack, pick-place) and need the hold after the plan's last move.
+RESET_AFTER_STEPS = 20
+
 
 def _pose(values: tuple[float, ...]) -> Pose:
     return Pose(np.array(values[:3]), np.array(values[3:7]))
@@ -91,6 +96,7 @@ class Bot:
         self._last_pose: tuple[Iterable[float], Iterable[float], bool, bool] | None = None
         self._await_seq: int | None = None  # a pose the server must apply before we go on
         self._skipped_practice = False
+        self._finished_at: int | None = None  # the step the plan finished at
         (observer or client).on_privileged = self._on_privileged
 
     def _on_privileged(self, message: PrivilegedState) -> None:
@@ -117,6 +123,7 @@ class Bot:
         if message.scene != self._scene:  # the server reset the scene: start over
             self._scene = message.scene
             self.operator.reset()
+            self._finished_at = None
             # Let go of the clutch until the server has applied that, so it re-anchors on our
             # next press. (Poses of the last episode still in flight may have pressed it again
             # after the reset; and the server applies only the latest pose of each step, so a
@@ -127,7 +134,8 @@ class Bot:
             self._await_seq = self.client.send_pose(*self._last_pose)
             return
         if self.operator.finished:
-            return  # plan done without success: wait for the reset we asked for
+            self._after_plan(message.step)
+            return
         if self._await_seq is not None and message.command_seq < self._await_seq:
             # The server has not applied our clutch release or press yet. It anchors the device
             # to the arm on the first engaged pose it applies, so keep sending that very pose:
@@ -146,6 +154,13 @@ class Bot:
         seq = self.client.send_pose(*self._last_pose)
         self._await_seq = seq if engaging else None
         if self.operator.finished:
+            self._finished_at = message.step
+
+    def _after_plan(self, step: int) -> None:
+        """The plan is done: let a success hold; if the episode has not ended after
+        `RESET_AFTER_STEPS`, ask for a new scene (once)."""
+        if self._finished_at is not None and step - self._finished_at >= RESET_AFTER_STEPS:
+            self._finished_at = None
             self.client.request("reset")
 
     def _practising(self) -> bool:

@@ -161,12 +161,13 @@ def _scene_from_env_args(path: Path, names: list[str]) -> CheckResult:
 
     import robosuite
 
-    from crowdteleop.dataset.robosuite_replay import REPLAY_KWARGS
+    from crowdteleop.dataset.robosuite_replay import REPLAY_KWARGS, register_task_env
 
     env_args, _ = _env_args(path)
     with open_dataset(path) as file:
         recorded = str(file["data"][names[0]].attrs["model_file"])
         states = file["data"][names[0]]["states"][()][::10]
+        register_task_env(str(file["data"][names[0]].attrs.get("task", "")))
 
     def excludes(xml: str) -> set[tuple[str, str]]:
         found = ET.fromstring(xml).findall("./contact/exclude")

@@ -26,6 +26,7 @@ from crowdteleop.provenance.env_args import EnvArgs
 from crowdteleop.recording.metadata import robosuite_version
 from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.sim.robosuite_backend import RobosuiteSimulation
+from crowdteleop.tasks import get_task, import_env_module, task_names
 from crowdteleop.vocab import ControllerName
 
 # What replaying needs and robosuite.make would otherwise default differently.
@@ -196,6 +197,14 @@ class RobosuiteReplayer:
         return self._trajectory([self._step(action) for action in actions])
 
 
+def register_task_env(task: str) -> None:
+    """Make robosuite know a recorded task's environment class: a plug-in task's is defined
+    in its own module (`TaskSpec.env_module`), which nothing may have imported yet. A task the
+    catalogue does not know is left to robosuite.make to name."""
+    if task in task_names():
+        import_env_module(get_task(task))
+
+
 @dataclass(frozen=True)
 class StatePlayback:
     """robosuite's playback of one demo: how far its states read back, and the last verdict."""
@@ -217,6 +226,7 @@ def play_states_in_robosuite(dataset: str, demo: str) -> StatePlayback:
         group = file["data"][demo]
         states = group["states"][()]
         model_file = str(group.attrs["model_file"])
+        register_task_env(str(group.attrs.get("task", "")))
     env = robosuite.make(
         **env_info,
         has_renderer=False,  # the script opens a window; the rest is its arguments verbatim
