@@ -37,7 +37,9 @@ def _row(result: TaskCheck) -> list[str]:
         f"{result.render_ms:.1f} / {result.robosuite_render_ms:.1f}",
         f"{result.render_ratio:.1f}x",
         f"{result.picture_mad:.2f}",
-        f"{result.drift_median_m * 1000:.2f} / {result.drift_max_m * 1000:.2f}",
+        f"{result.drift_median_m * 1000:.2f} / {result.drift_p95_m * 1000:.2f} / "
+        f"{result.drift_max_m * 1000:.2f}",
+        result.driven_by,
         "; ".join(result.problems()) or "faithful",
     ]
 
@@ -46,7 +48,7 @@ def _row(result: TaskCheck) -> list[str]:
 def main(
     tasks: Annotated[str, typer.Option(help="comma-separated, on Panda")] = "",
     robots: Annotated[str, typer.Option(help="comma-separated, each on lift")] = OTHER_ROBOTS,
-    steps: int = 60,
+    steps: int = 600,
     json_out: Annotated[Path | None, typer.Option("--json")] = None,
 ) -> None:
     cases = [(task, "Panda") for task in (tasks or _robosuite_tasks()).split(",") if task]
@@ -61,7 +63,7 @@ def main(
         "render ms",
         "ratio",
         "MAD",
-        "drift mm med / max",
+        "drift mm med / p95 / max",
         "verdict",
         title=f"tasks check, {datetime.now(UTC):%Y-%m-%d %H:%M} UTC, {steps} steps",
     )

@@ -28,7 +28,7 @@ MAY_IMPORT: dict[str, set[str]] = {
     "client": BASE | {"tasks", "sim", "control", "teleop"},
     "dataset": BASE | {"tasks", "sim", "control", "recording", "provenance"},
     "learn": BASE | {"tasks", "sim", "control", "recording", "dataset", "provenance"},
-    "taskcheck": BASE | {"tasks", "sim", "recording", "dataset", "provenance"},
+    "taskcheck": BASE | {"tasks", "sim", "control", "recording", "dataset", "provenance"},
     "web": set(),
     "linkemu": set(),
     "coord": BASE | {"tasks", "recording", "teleop", "web"},

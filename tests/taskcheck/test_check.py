@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from crowdteleop.cli import app
-from crowdteleop.taskcheck.check import DRIFT_MAX_LIMIT_M, MAD_LIMIT
+from crowdteleop.taskcheck.check import DRIFT_P95_LIMIT_M, MAD_LIMIT
 from crowdteleop.tasks import TASK_FILES_VARIABLE, catalogue
 
 runner = CliRunner()
@@ -26,7 +26,7 @@ def test_a_new_built_in_task_is_checked_faithful_with_its_figures(tmp_path):
     measured = json.loads(figures.read_text())
     assert measured["fast_path"] and measured["problems"] == []
     assert measured["step_ratio"] > 1.5, "the fast path should step faster than robosuite"
-    assert measured["picture_mad"] <= MAD_LIMIT and measured["drift_max_m"] <= DRIFT_MAX_LIMIT_M
+    assert measured["picture_mad"] <= MAD_LIMIT and measured["drift_p95_m"] <= DRIFT_P95_LIMIT_M
 
 
 @pytest.mark.slow
