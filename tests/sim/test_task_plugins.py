@@ -10,6 +10,9 @@ import sys
 import numpy as np
 import pytest
 
+from crowdteleop.control.config import ControlConfig
+from crowdteleop.control.scripted import ScriptedOperator, run_episode
+from crowdteleop.control.teleoperator import Teleoperator
 from crowdteleop.errors import ConfigError, UnknownRobotError
 from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.tasks import TASK_FILES_VARIABLE, catalogue
@@ -100,3 +103,54 @@ def test_asking_for_the_fast_path_where_it_cannot_serve_is_refused(odd_tasks):
 def test_an_environment_that_cannot_be_built_is_a_clear_error(odd_tasks, task, message):
     with pytest.raises(ConfigError, match=re.escape(message)):
         make_simulation(SimConfig(task=task, robot="Panda"))
+
+
+@pytest.mark.parametrize(
+    ("task", "robot", "messages", "touched"),
+    [
+        (
+            "stack",
+            "Panda",
+            [
+                "Reach for the red cube and grasp it.",
+                "Red cube grasped: put it on the green cube.",
+                "Task done: well done!",
+            ],
+            "cubeA",
+        ),
+        (
+            "high-lift",
+            "IIWA",
+            [
+                "Reach for the cube and grasp it.",
+                "Cube grasped: lift it 10 cm.",
+                "Task done: well done!",
+            ],
+            "cube",
+        ),
+    ],
+)
+def test_a_worker_sees_a_new_tasks_stages_success_and_contacts(
+    with_task_plugin, task, robot, messages, touched
+):
+    """What the teleop page shows (the stage line is `progress.message`) and what drives the
+    phone's haptics (contacts with the task's objects), for a new built-in and a plug-in task."""
+    control = ControlConfig(controller="osc")
+    sim = make_simulation(SimConfig(task=task, robot=robot, action_mode=control.action_mode))
+    seen: list[str] = []
+    touches: set[str] = set()
+
+    def watch(step) -> None:
+        if not seen or seen[-1] != step.result.progress.message:
+            seen.append(step.result.progress.message)
+        touches.update(contact.object for contact in step.result.contacts)
+
+    try:
+        teleop = Teleoperator(sim, control)
+        operator = ScriptedOperator(sim, control.mapping, seed=1)
+        result = run_episode(teleop, operator, seed=0, time_limit_s=45.0, on_step=watch)
+    finally:
+        sim.close()
+    assert result.success
+    assert [message for message in seen if message in messages] == messages, seen
+    assert touched in touches
