@@ -46,12 +46,14 @@ def _row(result: TaskCheck) -> list[str]:
 
 @app.command()
 def main(
-    tasks: Annotated[str, typer.Option(help="comma-separated, on Panda")] = "",
+    tasks: Annotated[str, typer.Option(help="comma-separated, on each of --arms")] = "",
+    arms: Annotated[str, typer.Option(help="arms every task is checked on")] = "Sawyer,Panda",
     robots: Annotated[str, typer.Option(help="comma-separated, each on lift")] = OTHER_ROBOTS,
     steps: int = 600,
     json_out: Annotated[Path | None, typer.Option("--json")] = None,
 ) -> None:
-    cases = [(task, "Panda") for task in (tasks or _robosuite_tasks()).split(",") if task]
+    names = [task for task in (tasks or _robosuite_tasks()).split(",") if task]
+    cases = [(task, arm) for arm in arms.split(",") for task in names]
     cases += [("lift", robot) for robot in robots.split(",") if robot]
     results = [check_task(task, robot, steps) for task, robot in track(cases, "checking")]
     table = Table(

@@ -200,8 +200,13 @@ def teleop_server(
     except (CrowdteleopError, ValidationError, OSError, ValueError) as exc:
         Console(stderr=True).print(f"[red]error:[/red] {_explain(exc)}")
         raise typer.Exit(2) from exc
-    with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(serve(settings, host, port))
+    try:
+        with contextlib.suppress(KeyboardInterrupt):
+            asyncio.run(serve(settings, host, port))
+    except CrowdteleopError as exc:  # e.g. a task whose environment cannot be built
+        # one line, unwrapped: the coordinator quotes a server's last output when it fails
+        Console(stderr=True, soft_wrap=True).print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(2) from exc
 
 
 @app.command()

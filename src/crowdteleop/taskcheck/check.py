@@ -187,7 +187,7 @@ def _picture_difference(
     return float(diff.mean()), float(solid.mean())
 
 
-def check_task(task: str, robot: str = "Panda", steps: int = 600, seed: int = 0) -> TaskCheck:
+def check_task(task: str, robot: str = "Sawyer", steps: int = 600, seed: int = 0) -> TaskCheck:
     """Measure one task on `robot` with the OSC (the controller datasets replay with)."""
     config = SimConfig(task=task, robot=robot, action_mode="osc-pose")
     if get_task(task).backend != "robosuite":

@@ -38,7 +38,7 @@ def tasks(context: typer.Context) -> None:
 @app.command()
 def check(
     name: Annotated[str, typer.Argument(help="task name (see `crowdteleop tasks`)")],
-    robot: Annotated[str, typer.Option(help=f"one of {', '.join(ROBOSUITE_ARMS)}")] = "Panda",
+    robot: Annotated[str, typer.Option(help=f"one of {', '.join(ROBOSUITE_ARMS)}")] = "Sawyer",
     steps: Annotated[
         int,
         typer.Option(
