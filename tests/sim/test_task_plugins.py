@@ -154,3 +154,55 @@ def test_a_worker_sees_a_new_tasks_stages_success_and_contacts(
     assert result.success
     assert [message for message in seen if message in messages] == messages, seen
     assert touched in touches
+
+
+def test_a_plug_ins_own_mjcf_objects_run_on_the_plain_mujoco_backend(with_task_plugin):
+    """A package's MJCF objects beside the platform's arm and table, judged by its functions of
+    the MuJoCo model and data, with its stages on the worker's line, done by a bot."""
+    control = ControlConfig(controller="ik-velocity")
+    sim = make_simulation(SimConfig(task="block-lift"))
+    seen: list[str] = []
+    touches: set[str] = set()
+
+    def watch(step) -> None:
+        if not seen or seen[-1] != step.result.progress.message:
+            seen.append(step.result.progress.message)
+        touches.update(contact.object for contact in step.result.contacts)
+
+    try:
+        assert {"block", "landing", "table"} <= set(sim.object_poses())
+        assert sim.observations()["object"].shape == (20,)  # two objects: 3 + 4 + 3 each
+        teleop = Teleoperator(sim, control)
+        operator = ScriptedOperator(sim, control.mapping, seed=1)
+        result = run_episode(teleop, operator, seed=0, time_limit_s=30.0, on_step=watch)
+    finally:
+        sim.close()
+    assert result.success
+    wanted = ["Grasp the blue block.", "Lift it 5 cm.", "Task done: well done!"]
+    assert [message for message in seen if message in wanted] == wanted, seen
+    assert "block" in touches
+
+
+BAD_SCENES = """
+tasks:
+  - {name: no-file, backend: mujoco, env_name: x, scene: /nowhere/objects.xml,
+     instruction: i, success: "math:isnan"}
+  - {name: not-mjcf, backend: mujoco, env_name: x, scene: "crowdteleop:tasks/builtin.py",
+     instruction: i, success: "math:isnan"}
+"""
+
+
+@pytest.mark.parametrize(
+    ("task", "message"),
+    [("no-file", "cannot read its scene '/nowhere/objects.xml'"), ("not-mjcf", "is not MJCF")],
+)
+def test_a_scene_that_cannot_be_read_is_a_clear_error(tmp_path, monkeypatch, task, message):
+    path = tmp_path / "scenes.yaml"
+    path.write_text(BAD_SCENES)
+    monkeypatch.setenv(TASK_FILES_VARIABLE, str(path))
+    catalogue.cache_clear()
+    try:
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            make_simulation(SimConfig(task=task))
+    finally:
+        catalogue.cache_clear()

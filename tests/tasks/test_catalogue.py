@@ -140,3 +140,18 @@ def test_reading_the_catalogue_imports_no_simulator_and_no_plug_in_code(task_plu
         check=True,
     ).stdout.strip()
     assert loaded == "[]"
+
+
+@pytest.mark.parametrize(
+    ("fields", "reason"),
+    [
+        ("backend: mujoco, env_name: mine", "names its objects' MJCF file (scene)"),
+        ("backend: mujoco, env_name: mine, scene: s.xml", "says when it is done (success)"),
+        ("backend: robosuite, env_name: Lift, scene: s.xml", "set backend: mujoco"),
+    ],
+)
+def test_a_plain_mujoco_task_names_its_scene_and_its_success(tmp_path, fields, reason):
+    path = tmp_path / "tasks.yaml"
+    path.write_text(f"tasks:\n  - {{name: mine, instruction: i, {fields}}}")
+    found = load_catalogue({TASK_FILES_VARIABLE: str(path)})
+    assert len(found.problems) == 1 and reason in found.problems[0], found.problems

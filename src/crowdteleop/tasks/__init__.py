@@ -22,6 +22,7 @@ from crowdteleop.tasks.spec import (
     Stage,
     TaskSpec,
     import_env_module,
+    read_scene,
     resolve,
 )
 
@@ -40,6 +41,7 @@ __all__ = [
     "get_task",
     "import_env_module",
     "load_catalogue",
+    "read_scene",
     "resolve",
     "task_names",
     "tasks_in_file",

@@ -9,8 +9,10 @@ where a simulator runs: the coordinator and the catalogue never load it.
 from __future__ import annotations
 
 import importlib
+import importlib.resources
 import re
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import ConfigDict
@@ -71,6 +73,10 @@ class TaskSpec:
     # How the scripted operator (bots, tests) does it: a built-in plan's name ("lift",
     # "pick-place", "nut-assembly", "stack") or a reference to a plan of the task's own.
     operator_plan: str | None = None
+    # The objects of a plain-MuJoCo task (backend "mujoco"): an MJCF file whose <worldbody>
+    # bodies (and <asset>s) join the platform's arm and table; a path, or "package:file.xml"
+    # inside an installed package. Its `success` (and stages) take a `MujocoScene`.
+    scene: str | None = None
     source: str = "built-in"  # where the declaration came from, for listings and errors
 
     def __post_init__(self) -> None:
@@ -97,12 +103,23 @@ def declaration_problems(task: TaskSpec) -> list[str]:
     for reference in references:
         if reference is not None and not REFERENCE_PATTERN.match(reference):
             problems.append(f"{reference!r} is not a reference 'package.module:function'")
+    problems += _scene_problems(task)
     plan = task.operator_plan
     if plan is not None and ":" in plan and not REFERENCE_PATTERN.match(plan):
         problems.append(f"operator_plan {plan!r} is not a plan's name or 'package.module:plan'")
     if task.env_module is not None and not re.match(r"^[A-Za-z_][\w.]*$", task.env_module):
         problems.append(f"env_module {task.env_module!r} is not a module name")
     return problems
+
+
+def _scene_problems(task: TaskSpec) -> list[str]:
+    if task.scene is not None and task.backend != "mujoco":
+        return ["scene is the objects of a plain-MuJoCo task: set backend: mujoco"]
+    if task.backend == "mujoco" and task.scene is None and task.env_name != "lift":
+        return ["a mujoco task names its objects' MJCF file (scene), or env_name 'lift'"]
+    if task.backend == "mujoco" and task.scene is not None and task.success is None:
+        return ["a mujoco task with its own scene says when it is done (success)"]
+    return []
 
 
 def resolve(reference: str) -> Any:
@@ -116,6 +133,20 @@ def resolve(reference: str) -> Any:
         return getattr(module, attribute)
     except AttributeError:
         raise ConfigError(f"module {module_name!r} has no {attribute!r} ({reference!r})") from None
+
+
+def read_scene(task: TaskSpec) -> str:
+    """The text of the task's MJCF file: a path, or "package:file.xml" inside a package."""
+    assert task.scene is not None
+    package, sep, resource = task.scene.partition(":")
+    try:
+        if sep and not Path(task.scene).exists():
+            return importlib.resources.files(package).joinpath(resource).read_text()
+        return Path(task.scene).read_text()
+    except (OSError, ImportError, ValueError) as error:
+        raise ConfigError(
+            f"task {task.name!r}: cannot read its scene {task.scene!r}: {error}"
+        ) from None
 
 
 def import_env_module(task: TaskSpec) -> None:

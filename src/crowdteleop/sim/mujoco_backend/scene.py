@@ -11,6 +11,7 @@ the approach direction (out of the palm).
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
 from collections.abc import Callable
 
 import numpy as np
@@ -101,6 +102,28 @@ def _finger(side: str, sign: int) -> str:
 
 def lift_scene_xml() -> str:
     """The lift task: the arm, a table and a red 4.5 cm cube on it."""
+    return _scene("crowdteleop_lift", _cube())
+
+
+def objects_scene_xml(objects_mjcf: str, name: str) -> tuple[str, list[str]]:
+    """The arm and the table with a task's own objects: the ``<worldbody>`` bodies and the
+    ``<asset>`` entries of `objects_mjcf` (an MJCF document); and those bodies' names."""
+    try:
+        root = ET.fromstring(objects_mjcf)
+    except ET.ParseError as error:
+        raise ConfigError(f"the task's scene is not MJCF: {error}") from None
+    worldbody = root.find("worldbody")
+    bodies = [] if worldbody is None else worldbody.findall("body")
+    names = [body.get("name", "") for body in bodies]
+    if not bodies or not all(names):
+        raise ConfigError("the task's scene needs named <body> elements in its <worldbody>")
+    assets = root.find("asset")
+    extra = "" if assets is None else "".join(ET.tostring(a, encoding="unicode") for a in assets)
+    objects = "".join(ET.tostring(body, encoding="unicode") for body in bodies)
+    return _scene(f"crowdteleop_{name}", objects, extra), names
+
+
+def _scene(model: str, objects: str, extra_assets: str = "") -> str:
     cameras = "\n    ".join(
         (
             _camera("frontview", (1.6, 0.0, 1.45), (-0.15, 0.0, 0.95)),
@@ -108,15 +131,18 @@ def lift_scene_xml() -> str:
             _camera("sideview", (-0.1, 1.5, 1.45), (-0.1, 0.0, 0.95)),
         )
     )
-    return f"""<mujoco model="crowdteleop_lift">
-{_settings_and_assets()}  <worldbody>
+    assets = _settings_and_assets()
+    if extra_assets:
+        assets = assets.replace("  </asset>", f"    {extra_assets}\n  </asset>")
+    return f"""<mujoco model="{model}">
+{assets}  <worldbody>
     <light name="key" directional="true" pos="0.5 0.5 3" dir="-0.2 -0.2 -1" diffuse="0.6 0.6 0.6"
            castshadow="true"/>
     <light name="fill" directional="true" pos="-1 -1 3" dir="0.3 0.3 -1" diffuse="0.25 0.25 0.25"
            castshadow="false"/>
     <geom name="floor" type="plane" size="3 3 0.05" material="floor"/>
 {_table()}    {cameras}
-{_arm()}{_cube()}  </worldbody>
+{_arm()}{objects}  </worldbody>
   <actuator>
     {_actuators()}
   </actuator>

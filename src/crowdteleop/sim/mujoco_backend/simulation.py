@@ -20,7 +20,9 @@ from crowdteleop.errors import (
 )
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms
+from crowdteleop.sim.declared import DeclaredChecks, generic_progress
 from crowdteleop.sim.mujoco_backend import scene
+from crowdteleop.sim.mujoco_backend.objects import MujocoScene, SceneObjects
 from crowdteleop.sim.mujoco_data import flat_state, pose_from_matrix
 from crowdteleop.sim.rendering import CameraRenderer
 from crowdteleop.sim.types import (
@@ -34,18 +36,17 @@ from crowdteleop.sim.types import (
     TaskProgress,
     validate_state,
 )
-from crowdteleop.tasks import TaskSpec, get_task
+from crowdteleop.tasks import TaskSpec, get_task, read_scene
 
 # The scene has one arm of its own; "Sawyer" (SimConfig's default) is accepted so a config
 # written for the robosuite backend only needs its task changed.
 ROBOTS = ("mujoco-arm", "Sawyer")
-CUBE_XY_RANGE = 0.08  # m, uniform around the table centre
 LIFT_SUCCESS_HEIGHT = 0.04  # m above the cube's resting height
 IDENTITY_QUAT = np.array([0.0, 0.0, 0.0, 1.0])
 
 
 class MujocoSimulation:
-    """The pure-MuJoCo lift scene behind the `Simulation` interface."""
+    """A pure-MuJoCo scene behind the `Simulation` interface: lift, or a plug-in's objects."""
 
     def __init__(self, config: SimConfig) -> None:
         if config.robot not in ROBOTS:
@@ -64,14 +65,25 @@ class MujocoSimulation:
             raise ConfigError(
                 f"task {config.task!r} belongs to the {self.task.backend} backend, not mujoco"
             )
-        self._xml = scene.scene_xml(self.task.env_name)
-        self._model = mujoco.MjModel.from_xml_string(self._xml)
+        if self.task.scene is None:
+            self._xml, objects = scene.scene_xml(self.task.env_name), ["cube"]
+        else:
+            self._xml, objects = scene.objects_scene_xml(read_scene(self.task), self.task.name)
+        try:
+            self._model = mujoco.MjModel.from_xml_string(self._xml)
+        except ValueError as error:
+            raise ConfigError(
+                f"task {self.task.name!r}: its scene does not compile: {error}"
+            ) from None
         self._data = mujoco.MjData(self._model)
         model = self._model
         self._substeps = max(1, round(1.0 / (config.control_hz * model.opt.timestep)))
         self._renderer = CameraRenderer(model)
         self.cameras = self._renderer.cameras
         self._init_indices()
+        self._objects = SceneObjects(model, objects)
+        self._rest_z = float(self._objects.items[0].home[2])  # lift: the cube on the table
+        self.declared = DeclaredChecks(self.task, MujocoScene(model, self._data))
         n = len(scene.ARM_JOINTS)
         speed = config.max_joint_speed
         self.action_spec = ActionSpec(
@@ -103,12 +115,8 @@ class MujocoSimulation:
             [model.actuator(f"{name}_position").id for name in scene.FINGER_JOINTS]
         )
         self._pad_geoms = tuple(model.geom(name).id for name in scene.FINGER_PADS)
-        self._cube_body = model.body("cube").id
-        self._cube_geom = model.geom("cube").id
-        self._cube_qpos = model.jnt_qposadr[model.joint("cube_joint").id]
         self._ee_site_id = model.site("ee_site").id
         self._base_body_id = model.body("robot_base").id
-        self._cube_rest_z = scene.TABLE_TOP_Z + scene.CUBE_HALF
 
     # --- lifecycle -------------------------------------------------------------------------
     @property
@@ -121,17 +129,7 @@ class MujocoSimulation:
         mujoco.mj_resetData(model, data)
         data.qpos[self._arm_qpos] = scene.HOME_QPOS
         data.qpos[self._finger_qpos] = 0.0
-        x, y = rng.uniform(-CUBE_XY_RANGE, CUBE_XY_RANGE, size=2)
-        yaw = rng.uniform(-np.pi, np.pi)
-        data.qpos[self._cube_qpos : self._cube_qpos + 7] = (
-            x,
-            y,
-            self._cube_rest_z,
-            np.cos(yaw / 2),
-            0.0,
-            0.0,
-            np.sin(yaw / 2),
-        )
+        self._objects.place(data, rng)
         data.act[self._servo_act] = scene.HOME_QPOS
         mujoco.mj_forward(model, data)
 
@@ -159,8 +157,11 @@ class MujocoSimulation:
         return StepResult(float(success), success, self.contacts(), self._progress(success))
 
     def success(self) -> bool:
-        cube_z = self._data.xpos[self._cube_body][2]
-        return bool(cube_z > self._cube_rest_z + LIFT_SUCCESS_HEIGHT)
+        """The task's own test where it declares one, else lift's: the cube 4 cm up."""
+        if self.declared.declares_success:
+            return self.declared.success()
+        cube_z = self._data.xpos[self._objects.items[0].body][2]
+        return bool(cube_z > self._rest_z + LIFT_SUCCESS_HEIGHT)
 
     # --- state -----------------------------------------------------------------------------
     def get_state(self) -> npt.NDArray[np.float64]:
@@ -185,14 +186,12 @@ class MujocoSimulation:
             raise InvalidStateError("this scene's controller keeps no state between steps")
 
     def observations(self) -> dict[str, npt.NDArray[np.float64]]:
-        """robosuite Lift's keys for this scene (object: cube position, quaternion (x, y, z,
-        w), cube minus hand position)."""
+        """robosuite Lift's keys for this scene (object: per object its position, quaternion
+        (x, y, z, w) and position minus the hand's)."""
         data, robot = self._data, self.robot_state()
-        cube = data.qpos[self._cube_qpos : self._cube_qpos + 7]
-        cube_quat = np.array([cube[4], cube[5], cube[6], cube[3]])
         hand = robot.end_effector.position
         return {
-            "object": np.concatenate([cube[:3], cube_quat, cube[:3] - hand]),
+            "object": self._objects.observation(data, hand),
             "robot0_joint_pos": robot.joint_positions,
             "robot0_joint_pos_cos": np.cos(robot.joint_positions),
             "robot0_joint_pos_sin": np.sin(robot.joint_positions),
@@ -216,6 +215,11 @@ class MujocoSimulation:
         return self._progress(self.success())
 
     def _progress(self, success: bool) -> TaskProgress:
+        if self.declared.declares_stages:
+            return self.declared.staged_progress(success)
+        if self.declared.declares_success:
+            held = self._objects.held(self._data, self._pad_geoms)
+            return generic_progress(self.task.instruction, success, held)
         if success:
             return TaskProgress("done", "Cube lifted: well done!", 2, 2)
         if self._grasped():
@@ -224,10 +228,7 @@ class MujocoSimulation:
 
     def _grasped(self) -> bool:
         """Both finger pads touch the cube."""
-        contact = self._data.contact
-        g1, g2 = contact.geom1, contact.geom2
-        touching = np.concatenate((g2[g1 == self._cube_geom], g1[g2 == self._cube_geom]))
-        return all(pad in touching for pad in self._pad_geoms)
+        return bool(self._objects.held(self._data, self._pad_geoms))
 
     def robot_state(self) -> RobotState:
         data = self._data
@@ -252,10 +253,8 @@ class MujocoSimulation:
         return np.concatenate([angular_linear[3:], angular_linear[:3]])
 
     def object_poses(self) -> dict[str, Pose]:
-        data = self._data
-        cube = pose_from_matrix(data.xpos[self._cube_body], data.xmat[self._cube_body])
         table = Pose(np.array([0.0, 0.0, scene.TABLE_TOP_Z]), IDENTITY_QUAT.copy())
-        return {"cube": cube, "table": table}
+        return self._objects.poses(self._data) | {"table": table}
 
     def kinematics(self) -> KinematicModel:
         return KinematicModel(
@@ -276,5 +275,4 @@ class MujocoSimulation:
             geom: model.body(model.geom_bodyid[geom]).name
             for geom in body_subtree_geoms(model, [self._base_body_id])
         }
-        object_geoms = {geom: "cube" for geom in body_subtree_geoms(model, [self._cube_body])}
-        return ContactReader(model, robot_geoms, object_geoms)
+        return ContactReader(model, robot_geoms, self._objects.contact_names(model))

@@ -115,16 +115,6 @@ def has_own_progress(env: Any) -> bool:
     )
 
 
-def generic_progress(env: Any, instruction: str, success: bool, grasped: Grasped) -> TaskProgress:
-    """For a task that declares no stages: its instruction, what the hand holds, done."""
-    if success:
-        return TaskProgress("done", "Task done: well done!", 1, 1)
-    held = [obj.name for obj in active_objects(env) if grasped(obj)]
-    if held:
-        return TaskProgress("grasped", f"{held[0]} grasped. {instruction}", 0, 1)
-    return TaskProgress("reach", instruction, 0, 1)
-
-
 def progress(env: Any, success: bool, grasped: Grasped | None = None) -> TaskProgress:
     """A stage and a sentence for the worker, e.g. "can grasped" or "1 of 2 nuts placed".
 
