@@ -19,7 +19,8 @@ runner = CliRunner()
 def test_a_new_built_in_task_is_checked_faithful_with_its_figures(tmp_path):
     figures = tmp_path / "stack.json"
     result = runner.invoke(
-        app, ["tasks", "check", "stack", "--steps", "20", "--json", str(figures)]
+        app,
+        ["tasks", "check", "stack", "--json", str(figures)],  # a whole scripted episode
     )
     assert result.exit_code == 0, result.output
     assert "the fast path is faithful here" in result.output

@@ -71,30 +71,34 @@ def portable(xml: str) -> str:
     return _ASSET_FILE.sub(r"\1", xml)
 
 
+_BODY_TAG = re.compile(r"<body\b[^>]*>")
+_PLACEMENT = re.compile(r'\s(?:pos|quat|euler|axisangle|xyaxes|zaxis)="[^"]*"')
+
+
 def with_body_placements(
     xml: str, placements: Mapping[str, tuple[Sequence[float], Sequence[float]]]
 ) -> str:
     """The same model with the named bodies at (position, quaternion wxyz) in their parents:
     where a reset placed them (robosuite places fixtures such as Door's door in the model, not
-    the state, so a recorded model file must carry them to rebuild the episode's scene)."""
-    root = ET.fromstring(xml)
-    for body in root.iter("body"):
-        placed = placements.get(body.get("name", ""))
-        if placed is not None:
-            position, quaternion = placed
-            body.set("pos", " ".join(f"{v:.12g}" for v in position))
-            body.set("quat", " ".join(f"{v:.12g}" for v in quaternion))
-            for attribute in ("euler", "axisangle", "xyaxes", "zaxis"):
-                body.attrib.pop(attribute, None)
-    return ET.tostring(root, encoding="unicode")
+    the state, so a recorded model file must carry them to rebuild the episode's scene).
+
+    Edited as text, tag by tag: everything else in the file stays as it was written."""
+
+    def placed(match: re.Match[str]) -> str:
+        tag = match.group(0)
+        name = re.search(r'\sname="([^"]*)"', tag)
+        if name is None or name.group(1) not in placements:
+            return tag
+        position, quaternion = placements[name.group(1)]
+        where = " ".join(f"{v:.12g}" for v in position)
+        turn = " ".join(f"{v:.12g}" for v in quaternion)
+        return f'<body pos="{where}" quat="{turn}"' + _PLACEMENT.sub("", tag)[len("<body") :]
+
+    return _BODY_TAG.sub(placed, xml)
 
 
 def _placement_free(xml: str) -> str:
-    root = ET.fromstring(xml)
-    for body in root.iter("body"):
-        for attribute in ("pos", "quat", "euler", "axisangle", "xyaxes", "zaxis"):
-            body.attrib.pop(attribute, None)
-    return ET.tostring(root, encoding="unicode")
+    return _BODY_TAG.sub(lambda match: _PLACEMENT.sub("", match.group(0)), xml)
 
 
 def same_model(recorded: str, rebuilt: str) -> bool:
