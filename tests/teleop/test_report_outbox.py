@@ -15,7 +15,12 @@ from contextlib import asynccontextmanager
 from aiohttp import web
 
 from crowdteleop.teleop.messages import EpisodeReport
-from crowdteleop.teleop.report import PendingReport, ReportOutbox
+from crowdteleop.teleop.report import (
+    MAX_BACKOFF_S,
+    REQUEST_TIMEOUT_S,
+    PendingReport,
+    ReportOutbox,
+)
 from tests.fixtures.s3 import free_port
 
 
@@ -53,7 +58,12 @@ async def coordinator(port: int, status: int = 200) -> AsyncIterator[list[str]]:
         await runner.cleanup()
 
 
-async def until(condition, timeout_s: float = 10.0) -> None:
+# An attempt may take up to a request's timeout on a loaded machine, then back off: what the
+# waits allow (they test order and exactly-once; how soon is benchmarks/deploy.py's figure).
+PATIENCE_S = REQUEST_TIMEOUT_S + MAX_BACKOFF_S + 5.0
+
+
+async def until(condition, timeout_s: float = PATIENCE_S) -> None:
     deadline = asyncio.get_running_loop().time() + timeout_s
     while not condition():
         assert asyncio.get_running_loop().time() < deadline, "never happened"
