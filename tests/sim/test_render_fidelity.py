@@ -31,32 +31,13 @@ from crowdteleop.sim.fastrender import simplify as simplify_module
 from crowdteleop.sim.fastrender.compositor import PARK_AFTER_FRAMES, may_show
 from crowdteleop.sim.fastrender.layers import MOVING
 from crowdteleop.sim.fastrender.textures import textures_used
-from crowdteleop.sim.rendering import CameraRenderer
+from crowdteleop.sim.rendering import CameraRenderer, picture_difference
 from tests.fixtures.motion import arm_motion
 
 TASKS = ["lift", "pick-place-can", "nut-assembly-round"]
 MAD_LIMIT = {(320, 240): 1.0, (480, 360): 0.8}
 SINGLE_PASS_MAD_LIMIT = 1.6  # the fallback: every edge aliased (measured 1.2 at 320x240)
 BLOB_LIMIT = 0.0005  # fraction of pixels in a strongly differing 3x3 block
-STRONG = 48  # a channel difference this large is not shading noise
-
-
-def picture_difference(ours: np.ndarray, reference: np.ndarray) -> dict[str, float]:
-    """MAD overall, MAD over differing pixels, their share, and the share in solid blobs."""
-    diff = np.abs(ours.astype(np.int16) - reference.astype(np.int16))
-    differs = diff.max(axis=2) > 0
-    strong = diff.max(axis=2) > STRONG
-    height, width = strong.shape
-    solid = np.ones((height - 2, width - 2), dtype=bool)
-    for dy in range(3):
-        for dx in range(3):
-            solid &= strong[dy : dy + height - 2, dx : dx + width - 2]
-    return {
-        "mad": float(diff.mean()),
-        "mad_differing": float(diff[differs].mean()) if differs.any() else 0.0,
-        "differing": float(differs.mean()),
-        "blob": float(solid.mean()),
-    }
 
 
 @pytest.fixture(params=TASKS, scope="module")

@@ -105,6 +105,19 @@ def test_an_environment_that_cannot_be_built_is_a_clear_error(odd_tasks, task, m
         make_simulation(SimConfig(task=task, robot="Panda"))
 
 
+class Watch:
+    """What a worker would see over an episode: each new stage line, every object touched."""
+
+    def __init__(self) -> None:
+        self.seen: list[str] = []
+        self.touches: set[str] = set()
+
+    def step(self, step) -> None:
+        if not self.seen or self.seen[-1] != step.result.progress.message:
+            self.seen.append(step.result.progress.message)
+        self.touches.update(contact.object for contact in step.result.contacts)
+
+
 @pytest.mark.parametrize(
     ("task", "robot", "messages", "touched"),
     [
@@ -137,23 +150,16 @@ def test_a_worker_sees_a_new_tasks_stages_success_and_contacts(
     phone's haptics (contacts with the task's objects), for a new built-in and a plug-in task."""
     control = ControlConfig(controller="osc")
     sim = make_simulation(SimConfig(task=task, robot=robot, action_mode=control.action_mode))
-    seen: list[str] = []
-    touches: set[str] = set()
-
-    def watch(step) -> None:
-        if not seen or seen[-1] != step.result.progress.message:
-            seen.append(step.result.progress.message)
-        touches.update(contact.object for contact in step.result.contacts)
-
+    watch = Watch()
     try:
         teleop = Teleoperator(sim, control)
         operator = ScriptedOperator(sim, control.mapping, seed=1)
-        result = run_episode(teleop, operator, seed=0, time_limit_s=45.0, on_step=watch)
+        result = run_episode(teleop, operator, seed=0, time_limit_s=45.0, on_step=watch.step)
     finally:
         sim.close()
     assert result.success
-    assert [message for message in seen if message in messages] == messages, seen
-    assert touched in touches
+    assert [m for m in watch.seen if m in messages] == messages, watch.seen
+    assert touched in watch.touches
 
 
 def test_a_plug_ins_own_mjcf_objects_run_on_the_plain_mujoco_backend(with_task_plugin):
@@ -161,26 +167,19 @@ def test_a_plug_ins_own_mjcf_objects_run_on_the_plain_mujoco_backend(with_task_p
     the MuJoCo model and data, with its stages on the worker's line, done by a bot."""
     control = ControlConfig(controller="ik-velocity")
     sim = make_simulation(SimConfig(task="block-lift"))
-    seen: list[str] = []
-    touches: set[str] = set()
-
-    def watch(step) -> None:
-        if not seen or seen[-1] != step.result.progress.message:
-            seen.append(step.result.progress.message)
-        touches.update(contact.object for contact in step.result.contacts)
-
+    watch = Watch()
     try:
         assert {"block", "landing", "table"} <= set(sim.object_poses())
         assert sim.observations()["object"].shape == (20,)  # two objects: 3 + 4 + 3 each
         teleop = Teleoperator(sim, control)
         operator = ScriptedOperator(sim, control.mapping, seed=1)
-        result = run_episode(teleop, operator, seed=0, time_limit_s=30.0, on_step=watch)
+        result = run_episode(teleop, operator, seed=0, time_limit_s=30.0, on_step=watch.step)
     finally:
         sim.close()
     assert result.success
     wanted = ["Grasp the blue block.", "Lift it 5 cm.", "Task done: well done!"]
-    assert [message for message in seen if message in wanted] == wanted, seen
-    assert "block" in touches
+    assert [m for m in watch.seen if m in wanted] == wanted, watch.seen
+    assert "block" in watch.touches
 
 
 BAD_SCENES = """

@@ -93,3 +93,28 @@ class CameraRenderer:
         for renderer in self._renderers.values():
             renderer.close()
         self._renderers.clear()
+
+
+STRONG_DIFFERENCE = 48  # a channel difference this large is not shading noise
+
+
+def picture_difference(
+    ours: npt.NDArray[np.uint8], reference: npt.NDArray[np.uint8]
+) -> dict[str, float]:
+    """Two pictures of one state compared: MAD overall (0-255), MAD over the pixels that
+    differ, their share, and the share inside a strongly differing 3x3 block (a missing or
+    misplaced part; edge aliasing cannot make one)."""
+    diff = np.abs(ours.astype(np.int16) - reference.astype(np.int16))
+    differs = diff.max(axis=2) > 0
+    strong = diff.max(axis=2) > STRONG_DIFFERENCE
+    height, width = strong.shape
+    solid = np.ones((height - 2, width - 2), dtype=bool)
+    for dy in range(3):
+        for dx in range(3):
+            solid &= strong[dy : dy + height - 2, dx : dx + width - 2]
+    return {
+        "mad": float(diff.mean()),
+        "mad_differing": float(diff[differs].mean()) if differs.any() else 0.0,
+        "differing": float(differs.mean()),
+        "blob": float(solid.mean()),
+    }

@@ -41,14 +41,13 @@ from crowdteleop.errors import ConfigError
 from crowdteleop.provenance.env_args import EnvArgs
 from crowdteleop.recording.metadata import robosuite_version
 from crowdteleop.sim import SimConfig, make_simulation
-from crowdteleop.sim.rendering import CameraRenderer
+from crowdteleop.sim.rendering import CameraRenderer, picture_difference
 from crowdteleop.sim.robosuite_backend import RobosuiteSimulation
 from crowdteleop.tasks import get_task
 
 PICTURE_SIZE = (320, 240)
 MAD_LIMIT = 1.0  # 0-255, at 320x240 (measured 0.58-0.64 on the built-in tasks)
 BLOB_LIMIT = 0.0005  # share of pixels in a strongly differing 3x3 block (measured 0)
-STRONG = 48  # a channel difference this large is not shading noise
 DRIFT_MEDIAN_LIMIT_M = 0.001
 DRIFT_P95_LIMIT_M = 0.003  # the worst step is reported, not judged: one contact event (a nut
 # dropping onto its peg) can part two faithful simulators by centimetres for a step
@@ -174,19 +173,6 @@ class _Recording:
         self.hands = np.array(hands)
 
 
-def _picture_difference(
-    ours: npt.NDArray[np.uint8], theirs: npt.NDArray[np.uint8]
-) -> tuple[float, float]:
-    diff = np.abs(ours.astype(np.int16) - theirs.astype(np.int16))
-    strong = diff.max(axis=2) > STRONG
-    height, width = strong.shape
-    solid = np.ones((height - 2, width - 2), dtype=bool)
-    for dy in range(3):
-        for dx in range(3):
-            solid &= strong[dy : dy + height - 2, dx : dx + width - 2]
-    return float(diff.mean()), float(solid.mean())
-
-
 def check_task(task: str, robot: str = "Sawyer", steps: int = 600, seed: int = 0) -> TaskCheck:
     """Measure one task on `robot` with the OSC (the controller datasets replay with)."""
     config = SimConfig(task=task, robot=robot, action_mode="osc-pose")
@@ -225,11 +211,11 @@ def _check(sim: RobosuiteSimulation, config: SimConfig, steps: int, seed: int) -
             plain.sim.set_state_from_flattened(state)
             plain.sim.forward()
             ours = sim.render(camera, *PICTURE_SIZE)
-            mad, blob = _picture_difference(
+            figures = picture_difference(
                 ours, reference.render(plain.sim.data._data, camera, *PICTURE_SIZE)
             )
-            mads.append(mad)
-            blobs.append(blob)
+            mads.append(figures["mad"])
+            blobs.append(figures["blob"])
 
         timed = actions[:TIMED_STEPS]
 
