@@ -56,3 +56,35 @@ def test_an_episode_times_out_and_a_disconnect_ends_it(tmp_path):
     finished = tracker.end("disconnect")
     assert finished.outcome == "disconnect" and finished.number == 2
     assert tracker.end("reset") is None, "nothing runs: nothing to end"
+
+
+def test_step_labels_read_the_simulation_and_step_record_keeps_them(tmp_path):
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from crowdteleop.recording.episode_file import read_episode
+    from crowdteleop.sim.types import Pose, TaskProgress
+    from crowdteleop.teleop.episode import step_labels, step_record
+
+    def pose(x: float) -> Pose:
+        return Pose(np.array([x, 0.0, 1.0]), np.array([0.0, 0.0, 0.0, 1.0]))
+
+    sim = SimpleNamespace(  # what step_labels asks of a Simulation
+        progress=lambda: TaskProgress("grasped", "...", 1, 2, "Can/target"),
+        robot_state=lambda: SimpleNamespace(end_effector=pose(0.5)),
+        object_poses=lambda: {"Can": pose(0.1), "Can/target": pose(0.2)},
+    )
+    labels = step_labels(sim)
+    result = SimpleNamespace(reward=0.0, success=False, contacts=[])
+    step = SimpleNamespace(action=np.zeros(2), result=result)
+    tracker = _tracker(tmp_path)
+    tracker.maybe_start(engaged=True)
+    tracker.record(step_record(0, np.zeros(5), step, {"seq": 0}, 0.0, 0.001, labels))
+    tracker.record(step_record(1, np.zeros(5), step, {"seq": 1}, 0.0, 0.001))  # unlabelled
+    finished = tracker.end("reset")
+    recorded = read_episode(finished.recorder.finalize(finished.outcome)).labels
+    assert recorded.stage == ["grasped", ""] and recorded.relative_to == ["Can/target", ""]
+    np.testing.assert_array_equal(recorded.hand_pose[0], [0.5, 0, 1, 0, 0, 0, 1])
+    assert np.isnan(recorded.hand_pose[1]).all()
+    np.testing.assert_array_equal(recorded.object_poses["Can/target"][0], [0.2, 0, 1, 0, 0, 0, 1])

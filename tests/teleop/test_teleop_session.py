@@ -87,9 +87,20 @@ def test_a_bot_completes_lift_and_the_episode_replays_exactly(tmp_path):
     assert episode.outcome == "success"
     assert episode.metadata["task"] == "lift"
     assert episode.success[-10:].all()
+    labels = episode.labels  # each row's subtask label, read in the sim thread before its step
+    assert labels is not None and len(labels.stage) == episode.steps
+    assert "reach" in labels.stage and labels.relative_to[labels.stage.index("reach")] == "cube"
+    assert set(labels.object_poses) >= {"cube"}
     sim = make_simulation(SimConfig(**episode.metadata["sim_config"]))
     try:
         assert sim.mjcf_xml() == episode.model_xml, "the config rebuilds the recorded model"
+        for t in (0, episode.steps - 1):  # the labels describe the row's state
+            sim.set_state(episode.states[t])
+            hand = sim.robot_state().end_effector
+            np.testing.assert_allclose(
+                labels.hand_pose[t], [*hand.position, *hand.quaternion], rtol=0, atol=1e-9
+            )
+            assert labels.stage[t] == sim.progress().stage
         sim.set_state(episode.states[0])
         # the finger command robosuite's gripper ramps is state beside [time, qpos, qvel]
         sim.set_controller_state(np.array(episode.metadata["controller_state_at_start"]))

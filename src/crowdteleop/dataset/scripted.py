@@ -20,7 +20,7 @@ import numpy as np
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
-from crowdteleop.recording.episode_file import StepRecord
+from crowdteleop.recording.episode_file import StepLabels, StepRecord
 from crowdteleop.recording.metadata import EpisodeMetadata, episode_metadata
 from crowdteleop.recording.versions import runtime_versions
 from crowdteleop.recording.wal import EpisodeRecorder
@@ -35,7 +35,7 @@ class ScriptedEpisode:
     outcome: Outcome
     steps: int
     step_seconds: float  # wall time of the control steps alone (for overhead figures)
-    record_seconds: float  # wall time of the appends alone
+    record_seconds: float  # wall time of the appends alone (and of reading the step's labels)
     step_cpu_seconds: float  # CPU time of this thread in the control steps
     record_cpu_seconds: float  # ... and in the appends (a busy machine inflates wall times)
 
@@ -105,6 +105,11 @@ def record_scripted_episode(
 
     def recorded_step(command: DeviceCommand) -> TeleopStep:
         state = sim.get_state()
+        label_start, label_cpu = time.perf_counter(), time.thread_time()
+        # the subtask label of `state`, read before the step as the teleop session does
+        labels = StepLabels.of(sim.progress(), sim.robot_state().end_effector, sim.object_poses())
+        timing["record"] += time.perf_counter() - label_start
+        timing["record_cpu"] += time.thread_time() - label_cpu
         started_wall, started, cpu = time.time(), time.perf_counter(), time.thread_time()
         step = step_once(command)
         duration = time.perf_counter() - started
@@ -130,6 +135,7 @@ def record_scripted_episode(
                 reward=float(step.result.reward),
                 success=bool(step.result.success),
                 contacts=[vars(c) for c in step.result.contacts],
+                labels=labels,
             )
         )
         timing["record"] += time.perf_counter() - record_start

@@ -11,9 +11,11 @@ import io
 import json
 import os
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypedDict
+from urllib.parse import quote, unquote
 
 import h5py
 import numpy as np
@@ -53,6 +55,76 @@ class CommandRecord(TypedDict, total=False):
     gripper: float | bool  # closed: a bool from a device, a float from the scripted rig
 
 
+@dataclass(frozen=True, slots=True)
+class StepLabels:
+    """The subtask label of one control step, describing the state before its action.
+
+    ``stage`` and ``relative_to`` are the task's `TaskProgress` (the stage the worker is in and
+    the object its motion is relative to, "" when none); the poses are world-frame
+    ``x y z qx qy qz qw`` (metres, unit quaternion): the hand (end effector) and every object
+    ``Simulation.object_poses`` names. What MimicGen-style demonstration generation segments
+    source demonstrations by. Build it with ``of`` from the simulation's own values."""
+
+    stage: str
+    relative_to: str
+    hand_pose: npt.NDArray[np.float64]  # (7,): x y z qx qy qz qw, world frame, metres
+    object_poses: dict[str, npt.NDArray[np.float64]]  # name -> (7,)
+
+    @classmethod
+    def of(cls, progress: Any, hand: Any, objects: Mapping[str, Any]) -> StepLabels:
+        """From duck-typed sim values (progress.stage/.relative_to, pose.position/.quaternion)
+        -- recording must not import sim."""
+        return cls(
+            str(progress.stage),
+            str(getattr(progress, "relative_to", "")),
+            _pose7(hand),
+            {str(name): _pose7(pose) for name, pose in objects.items()},
+        )
+
+
+def _pose7(pose: Any) -> npt.NDArray[np.float64]:
+    row = np.empty(7)
+    row[:3] = pose.position
+    row[3:] = pose.quaternion
+    return row
+
+
+@dataclass(frozen=True)
+class EpisodeLabels:
+    """The subtask labels of an episode, one row per step (``StepLabels`` stacked).
+
+    A step recorded without labels has stage and relative_to "" and NaN poses; an object
+    missing at a step has a NaN row there."""
+
+    stage: list[str]  # (N,) one per step
+    relative_to: list[str]  # (N,)
+    hand_pose: npt.NDArray[np.float64]  # (N, 7)
+    object_poses: dict[str, npt.NDArray[np.float64]]  # name -> (N, 7)
+
+
+def stack_labels(steps: list[StepLabels | None]) -> EpisodeLabels | None:
+    """The episode's labels from its steps' (None if no step has any)."""
+    if all(step is None for step in steps):
+        return None
+    n = len(steps)
+    hand = np.full((n, 7), np.nan)
+    objects: dict[str, npt.NDArray[np.float64]] = {}
+    for t, step in enumerate(steps):
+        if step is None:
+            continue
+        hand[t] = step.hand_pose
+        for name, pose in step.object_poses.items():
+            if name not in objects:
+                objects[name] = np.full((n, 7), np.nan)
+            objects[name][t] = pose
+    return EpisodeLabels(
+        stage=[step.stage if step is not None else "" for step in steps],
+        relative_to=[step.relative_to if step is not None else "" for step in steps],
+        hand_pose=hand,
+        object_poses=objects,
+    )
+
+
 @dataclass(slots=True)  # not frozen: built every control step, and a frozen __init__ is slower
 class StepRecord:
     """One control step as the teleop server saw it; ``state`` is the state before ``action``."""
@@ -66,6 +138,7 @@ class StepRecord:
     reward: float
     success: bool
     contacts: list[dict[str, Any]]
+    labels: StepLabels | None = None  # the subtask label of ``state`` (None: not labelled)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -85,6 +158,7 @@ class EpisodeData:
     step_duration_s: npt.NDArray[np.float64]  # (N,)
     commands: list[CommandRecord]
     contacts: list[list[dict[str, Any]]]
+    labels: EpisodeLabels | None = None  # None: recorded without subtask labels
 
     @property
     def steps(self) -> int:
@@ -212,6 +286,41 @@ def _write_hdf5(
         commands = demo.create_group("commands")
         for name, column in _command_columns(partial.commands).items():
             commands.create_dataset(name, data=column, dtype=column.dtype)
+        if partial.labels is not None:
+            _write_labels(demo.create_group("labels"), partial.labels)
+
+
+def _write_labels(group: h5py.Group, labels: EpisodeLabels) -> None:
+    """``labels/``: stage, relative_to, hand_pose and ``object_poses/<name>``, the name
+    percent-encoded (``object_dataset_name``) and kept as the dataset's ``name`` attribute."""
+    group.create_dataset("stage", data=np.array(labels.stage, dtype=object), dtype=_STR)
+    group.create_dataset("relative_to", data=np.array(labels.relative_to, dtype=object), dtype=_STR)
+    group.create_dataset("hand_pose", data=labels.hand_pose.reshape(-1, 7))
+    objects = group.create_group("object_poses", track_order=True)  # read back in order
+    for name, poses in labels.object_poses.items():
+        objects.create_dataset(object_dataset_name(name), data=poses).attrs["name"] = name
+
+
+def object_dataset_name(name: str) -> str:
+    """An object's dataset name under ``labels/object_poses``: URL percent-encoding of its UTF-8
+    (``urllib.parse.quote(name, safe="")``: "Can/target" -> "Can%2Ftarget"; ``unquote`` reverses
+    it). The WAL codec never packs "" or "." (names HDF5 cannot hold)."""
+    return quote(name, safe="")
+
+
+def _read_labels(demo: h5py.Group) -> EpisodeLabels | None:
+    if "labels" not in demo:
+        return None  # recorded before labels, or by a caller that gave none
+    group = demo["labels"]
+    objects = group["object_poses"]
+    return EpisodeLabels(
+        stage=list(group["stage"].asstr()[()]),
+        relative_to=list(group["relative_to"].asstr()[()]),
+        hand_pose=group["hand_pose"][()],
+        object_poses={
+            str(objects[key].attrs.get("name", unquote(key))): objects[key][()] for key in objects
+        },
+    )
 
 
 def _command_columns(commands: list[CommandRecord]) -> dict[str, npt.NDArray[np.generic]]:
@@ -283,6 +392,7 @@ def _read_episode(path: Path) -> Episode:
                 step_duration_s=demo["step_duration_s"][()],
                 commands=[json.loads(c) for c in demo["commands/raw"].asstr()[()]],
                 contacts=[json.loads(c) for c in demo["contacts"].asstr()[()]],
+                labels=_read_labels(demo),
             )
         except (KeyError, ValueError, OSError) as error:
             raise CorruptEpisodeError(f"{path} is a damaged episode file: {error}") from error

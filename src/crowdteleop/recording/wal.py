@@ -1,19 +1,20 @@
 """Crash-safe episode recording: a write-ahead log while the episode runs, one HDF5 file after.
 
-Write-ahead log (``<episode_id>.wal``): the magic ``CTWAL02\\n``, then records framed as
-``<u32 payload length><u32 CRC-32 of payload><payload>`` (little-endian). The first payload is
-the header (``H`` + JSON: episode id, creation time, metadata with the MJCF); every other one a
+Write-ahead log (``<episode_id>.wal``): the magic ``CTWAL02\\n``, then records framed
+as ``<u32 payload length><u32 CRC-32 of payload><payload>`` (little-endian). The first payload
+is the header (``H`` + JSON: episode id, creation time, metadata with the MJCF); every other one a
 step (``C`` + index, times, reward, success, state and action sizes, flags, the device
 command's numbers, contact count; the raw float64 bytes of state and action; contact
-intensities and names; JSON only of a command or contacts that do not fit that layout; see
-``wal_codec``). Version 1 logs (``CTWAL01\\n``, steps as ``S`` records with the command and
-contacts in JSON) are still read. Binary rather than JSON lines because (1) states and actions
-are stored as their IEEE bits, so replay is exact by construction (-0.0, subnormals and all);
-(2) the checksum tells a torn or garbage tail (a kill mid-write, or the zero-filled block a
-power loss can leave) from a record, where a damaged JSON number could still parse; (3) it is
-cheap on the control loop, which only validates a step's numbers and keeps it: packing, framing
-and checksums happen when the buffer is flushed, by a flusher thread once ``flush_interval_s``
-has passed (so neither they nor the fsync stall the control loop): a crash loses at most that.
+intensities and names; the step's subtask labels, if it has them; JSON only of a command or
+contacts that do not fit that layout; see ``wal_codec``). Version 1 logs (``CTWAL01\\n``, steps
+as ``S`` records with the command and contacts in JSON) are still read. Binary rather than JSON
+lines because (1) states and actions are stored as their IEEE bits, so replay is exact by
+construction (-0.0, subnormals and all); (2) the checksum tells a torn or garbage tail (a kill
+mid-write, or the zero-filled block a power loss can leave) from a record, where a damaged JSON
+number could still parse; (3) it is cheap on the control loop, which only validates a step's
+numbers and keeps it: packing, framing and checksums happen when the buffer is flushed, by a
+flusher thread once ``flush_interval_s`` has passed (so neither they nor the fsync stall the
+control loop): a crash loses at most that.
 
 A live recorder holds ``flock`` on its log, so ``recover_orphans`` (``wal_recovery``) never
 touches an episode that is still being recorded, and the lock dies with a killed process.
@@ -45,6 +46,7 @@ from crowdteleop.recording.episode_file import (
     EPISODE_SUFFIX,
     InvalidRecordError,
     RecordingError,
+    StepLabels,
     StepRecord,
     split_metadata,
     to_json,
@@ -126,7 +128,8 @@ class EpisodeRecorder:
     @property
     def notes(self) -> int:
         """Commands or contact lists stored as a note naming the problem, as JSON refused them
-        (NaN, objects): the step itself is recorded."""
+        (NaN, objects), and label parts stored as NaN / "" (a pose with NaN, a name that is not
+        NUL-free UTF-8): the step itself is recorded."""
         return self._notes
 
     @property
@@ -319,8 +322,7 @@ class EpisodeRecorder:
             _finite_scalar(record.server_time, "server_time")
             _finite_scalar(record.step_duration_s, "step_duration_s")
             _finite_scalar(record.reward, "reward")  # each finite: only their sum overflowed
-        if not isinstance(record.command, dict) or not isinstance(record.contacts, list):
-            raise InvalidRecordError("command must be a dict and contacts a list")
+        _check_extras(record)
         if self._sizes is None:  # the first step: nothing can fail from here on
             self._set_sizes(state.size, action.size)
         return record
@@ -381,6 +383,36 @@ def _finite_vector(value: Any, name: str, error: type[ValueError]) -> npt.NDArra
     if not np.isfinite(vector).all():
         raise error(f"{name} contains NaN or infinity")
     return vector
+
+
+_POSE_SHAPE = (7,)
+
+
+def _check_extras(record: StepRecord) -> None:
+    """The command, contacts and labels: their types (packing them waits for the flush)."""
+    if not isinstance(record.command, dict) or not isinstance(record.contacts, list):
+        raise InvalidRecordError("command must be a dict and contacts a list")
+    if record.labels is not None:
+        _check_labels(record.labels)
+
+
+def _check_labels(labels: StepLabels) -> None:
+    """Types and shapes only (a few microseconds): NaN poses and odd names are the packer's to
+    store as NaN / "" and count, so labels never cost a step."""
+    if type(labels) is not StepLabels:
+        raise InvalidRecordError(f"labels must be a StepLabels, got {type(labels).__name__}")
+    if type(labels.stage) is not str or type(labels.relative_to) is not str:
+        raise InvalidRecordError("labels' stage and relative_to must be strings")
+    if not isinstance(labels.object_poses, dict):
+        raise InvalidRecordError("labels' object_poses must be a dict of name -> (7,) pose")
+    for name, pose in (("hand", labels.hand_pose), *labels.object_poses.items()):
+        if type(name) is not str or type(pose) is not np.ndarray or pose.shape != _POSE_SHAPE:
+            raise InvalidRecordError(
+                f"label pose {name!r} must be a (7,) float64 array (x y z qx qy qz qw), "
+                f"got {getattr(pose, 'shape', type(pose).__name__)}"
+            )
+        if pose.dtype != _F8:
+            raise InvalidRecordError(f"label pose {name!r} must be float64, got {pose.dtype}")
 
 
 def _finite_scalar(value: Any, name: str) -> float:

@@ -3,14 +3,18 @@
 A step is one "C" record (format version 2): the fixed fields of ``_COMPACT`` (index, times,
 reward, success, state and action sizes, flags, the device command's numbers, the contacts'
 count and the size of their names), then the raw little-endian float64 bytes of state and
-action, the contacts' intensities and NUL-joined names, and JSON of whatever did not fit the
-packed layout. Version 1 logs hold "S" records (``_STEP`` + vectors + JSON of command and
+action, the contacts' intensities and NUL-joined names, the step's subtask labels when flag 8
+says they follow (``_LABELS_HEAD`` + float64 poses + NUL-joined names), and JSON of whatever did
+not fit the packed layout. Logs written before labels existed never set flag 8, so they read
+exactly as before. Version 1 logs hold "S" records (``_STEP`` + vectors + JSON of command and
 contacts); they are still read.
 
 Packing runs off the control loop (``EpisodeRecorder`` validates a step's numbers when it is
 appended and packs it when the buffer is flushed), so nothing here raises on a step that passed
 that validation: a command or contact list that cannot be stored as JSON is recorded as a note
-naming the problem (and counted by the recorder), never dropped with the step.
+naming the problem (and counted by the recorder), never dropped with the step. Likewise a
+label that cannot pack (a pose with NaN, a stage or object name that is not NUL-free UTF-8) is
+stored as NaN / "" (the object left out: it reads as missing, NaN) and counted.
 """
 
 from __future__ import annotations
@@ -23,10 +27,12 @@ import zlib
 from typing import Any, cast
 
 import numpy as np
+import numpy.typing as npt
 
 from crowdteleop.recording.episode_file import (
     CommandRecord,
     InvalidRecordError,
+    StepLabels,
     StepRecord,
     to_json,
 )
@@ -39,7 +45,11 @@ WAL_SUFFIX = ".wal"
 FRAME = struct.Struct("<II")  # payload length, CRC-32 of payload
 _STEP = struct.Struct("<qdddBII")  # index, server_time, step_duration_s, reward, success, S, A
 _COMPACT = struct.Struct("<cqdddBIIBqd3d4d?dB7sHI")
-_COMMAND_PACKED, _GRIPPER_BOOL, _CONTACTS_PACKED = 1, 2, 4  # flags
+_COMMAND_PACKED, _GRIPPER_BOOL, _CONTACTS_PACKED, _LABELS = 1, 2, 4, 8  # flags
+# Labels (flag 8), after the contacts: u32 size of the rest of the block, u16 object count K,
+# then (1 + K) * 7 float64 (hand, then each object: x y z qx qy qz qw), then UTF-8 of stage,
+# relative_to and the K object names, NUL-separated.
+_LABELS_HEAD = struct.Struct("<IH")
 # A command is packed when it has exactly these keys (in any order, kept) with exact types:
 # seq int, client_time_ms float, device one of _DEVICES, position 3 and quaternion 4 floats in
 # lists, engaged bool, gripper float or bool; all finite. Anything else is stored as JSON.
@@ -76,12 +86,17 @@ def _encode_step(record: StepRecord) -> tuple[bytes, int]:
     if n_contacts >= 0:
         flags |= _CONTACTS_PACKED
     notes = 0
+    if record.labels is not None:
+        flags |= _LABELS
+        labels, notes = _pack_labels(record.labels, record.index)
+        tail += labels
     if not flags & _COMMAND_PACKED or n_contacts < 0:  # JSON for what did not pack
         rest: dict[str, Any] = {} if flags & _COMMAND_PACKED else {"command": command}
         if n_contacts < 0:
             n_contacts, rest["contacts"] = 0, contacts
-        json_tail, notes = _json_or_notes(rest, record.index)
+        json_tail, json_notes = _json_or_notes(rest, record.index)
         tail += json_tail
+        notes += json_notes
     fields = _COMPACT.pack(
         b"C",
         record.index,
@@ -97,6 +112,69 @@ def _encode_step(record: StepRecord) -> tuple[bytes, int]:
         names_size,
     )
     return b"".join((fields, state.tobytes(), action.tobytes(), tail)), notes
+
+
+def _pack_labels(labels: StepLabels, index: int) -> tuple[bytes, int]:
+    """The labels block, and how many of its parts had to be stored as "" / NaN / left out."""
+    notes = 0
+    texts = [_label_text(labels.stage), _label_text(labels.relative_to)]
+    notes += (texts[0] != labels.stage) + (texts[1] != labels.relative_to)
+    names: list[str] = []
+    poses = [labels.hand_pose]
+    for name, pose in labels.object_poses.items():
+        if _label_text(name) != name or name in ("", ".") or len(names) == 0xFFFF:
+            notes += 1  # left out: read back as missing at this step
+            continue
+        names.append(name)
+        poses.append(pose)
+    values = _pose_rows(poses)
+    if not math.isfinite(values.sum()):  # rare (or an overflow): store NaN for a bad pose
+        finite = np.isfinite(values).all(axis=1)
+        values[~finite] = math.nan
+        notes += int(np.count_nonzero(~finite))
+    if notes:
+        log.error("step %d: %d label part(s) could not be stored as given", index, notes)
+    body = values.tobytes() + "\x00".join(texts + names).encode()
+    return _LABELS_HEAD.pack(len(body), len(names)) + body, notes
+
+
+def _label_text(text: Any) -> str:
+    """A stage or name as packed: NUL-free UTF-8 strings as given, anything else ""."""
+    if type(text) is not str or "\x00" in text:
+        return ""
+    try:
+        text.encode()
+    except UnicodeEncodeError:  # lone surrogates
+        return ""
+    return text
+
+
+def _pose_rows(poses: list[Any]) -> npt.NDArray[np.float64]:
+    """Validated (7,) poses as a fresh little-endian (len, 7) array (NaN if, against
+    validation, they are not poses)."""
+    try:
+        return np.concatenate(poses, dtype="<f8").reshape(len(poses), 7)
+    except (TypeError, ValueError):
+        return np.full((len(poses), 7), math.nan)
+
+
+def _unpack_labels(payload: bytes, offset: int) -> tuple[StepLabels, int]:
+    """The labels block at ``offset``, and the offset after it."""
+    size, count = _LABELS_HEAD.unpack_from(payload, offset)
+    start, end = offset + _LABELS_HEAD.size, offset + _LABELS_HEAD.size + size
+    if end > len(payload):
+        raise ValueError("labels run past the record")
+    poses = np.frombuffer(payload, "<f8", 7 * (1 + count), start).reshape(-1, 7).copy()
+    texts = payload[start + poses.nbytes : end].decode().split("\x00")
+    if len(texts) != 2 + count:
+        raise ValueError("label names do not match their count")
+    labels = StepLabels(
+        stage=texts[0],
+        relative_to=texts[1],
+        hand_pose=poses[0],
+        object_poses=dict(zip(texts[2:], poses[1:], strict=True)),
+    )
+    return labels, end
 
 
 def _json_or_notes(rest: dict[str, Any], index: int) -> tuple[bytes, int]:
@@ -254,6 +332,9 @@ def _decode_compact(payload: bytes, index: int) -> StepRecord:
             {"robot_part": names[2 * i], "object": names[2 * i + 1], "intensity": intensities[i]}
             for i in range(n_contacts)
         ]
+    labels = None
+    if flags & _LABELS:
+        labels, offset = _unpack_labels(payload, offset)
     rest = json.loads(payload[offset:]) if offset < len(payload) else {}
     if flags & _COMMAND_PACKED:
         values = {
@@ -280,4 +361,5 @@ def _decode_compact(payload: bytes, index: int) -> StepRecord:
         reward=reward,
         success=bool(success),
         contacts=contacts if flags & _CONTACTS_PACKED else rest["contacts"],
+        labels=labels,
     )

@@ -21,6 +21,7 @@ from crowdteleop.recording.episode_file import (
     PartialEpisode,
     StepRecord,
     split_metadata,
+    stack_labels,
 )
 from crowdteleop.recording.wal_codec import FRAME, WAL_MAGIC, WAL_MAGIC_V1, decode_step
 
@@ -70,6 +71,7 @@ def parse_wal(data: bytes, path: Path) -> PartialEpisode:
         success=np.array([step.success for step in steps], dtype=bool),
         commands=[step.command for step in steps],
         contacts=[step.contacts for step in steps],
+        labels=stack_labels([step.labels for step in steps]),
         ignored_tail_bytes=len(data) - end,
     )
 

@@ -13,12 +13,13 @@ import numpy as np
 import numpy.typing as npt
 
 from crowdteleop.control.teleoperator import TeleopStep
-from crowdteleop.recording.episode_file import CommandRecord, StepRecord
+from crowdteleop.recording.episode_file import CommandRecord, StepLabels, StepRecord
 from crowdteleop.recording.metadata import EpisodeMetadata
 from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.recording.stores import SavedWhen
 from crowdteleop.recording.versions import runtime_versions
 from crowdteleop.recording.wal import EpisodeRecorder
+from crowdteleop.sim.interface import Simulation
 from crowdteleop.vocab import DeviceKind, Outcome
 
 log = logging.getLogger(__name__)
@@ -132,8 +133,10 @@ def step_record(
     raw_command: CommandRecord,
     server_time: float,
     duration_s: float,
+    labels: StepLabels | None = None,
 ) -> StepRecord:
-    """What the recorder stores of one control step (the recorder validates and copies)."""
+    """What the recorder stores of one control step (the recorder validates and copies);
+    ``labels`` describe ``state``, as ``step_labels`` reads them before the step."""
     result = step.result
     return StepRecord(
         index=index,
@@ -145,7 +148,15 @@ def step_record(
         reward=result.reward,
         success=result.success,
         contacts=list(map(vars, result.contacts)),
+        labels=labels,
     )
+
+
+def step_labels(sim: Simulation) -> StepLabels:
+    """The subtask label of the simulation's current state (stage, the object it is relative
+    to, hand and object poses): read in the sim thread before stepping, so a row's labels
+    describe its state, as an offline pass that set that state would (~40 us on lift)."""
+    return StepLabels.of(sim.progress(), sim.robot_state().end_effector, sim.object_poses())
 
 
 def store_episode(

@@ -30,7 +30,13 @@ from crowdteleop.sim.types import ContactEvent, Pose, TaskProgress
 from crowdteleop.tasks import get_task
 from crowdteleop.teleop.commands import CommandBoard
 from crowdteleop.teleop.config import TeleopConfig
-from crowdteleop.teleop.episode import EpisodeTracker, FinishedEpisode, step_record, store_episode
+from crowdteleop.teleop.episode import (
+    EpisodeTracker,
+    FinishedEpisode,
+    step_labels,
+    step_record,
+    store_episode,
+)
 from crowdteleop.teleop.practice import PracticeRound
 from crowdteleop.teleop.video import YuvConverter
 from crowdteleop.vocab import Outcome
@@ -289,12 +295,13 @@ class TeleopSession:
         """Runs in the simulation thread."""
         sim = self.teleop.sim
         state = sim.get_state() if self.tracker.recording else None
+        labels = step_labels(sim) if state is not None else None  # of `state`, before the step
         started_wall, started = time.time(), time.perf_counter()
         step = self.teleop.step(command)
         duration = time.perf_counter() - started
         if state is not None:  # recording: the recorder validates, converts and copies
             outcome = self.tracker.record(
-                step_record(self.tracker.steps, state, step, raw, started_wall, duration)
+                step_record(self.tracker.steps, state, step, raw, started_wall, duration, labels)
             )
             if outcome is not None:
                 self._end(outcome)
