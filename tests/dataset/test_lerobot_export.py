@@ -113,6 +113,11 @@ def test_lerobot_loads_the_export(exported, lerobot_python, tmp_path):
         assert {f["episode_index"] for f in frames} == {e}
         assert [f["frame_index"] for f in frames] == list(range(episode["length"]))
         start, video_start = episode["dataset_to_index"], video_start + episode["length"] / 20
+    # each frame's subtask (the stage the worker was in), named in meta/subtasks.parquet
+    subtasks = pq.read_table(exported / "meta/subtasks.parquet").to_pydict()
+    named = dict(zip(subtasks["subtask_index"], subtasks["subtask"], strict=True))
+    first = read["frames"][0]["subtask_index"]
+    assert named[first] == "reach (cube)" and named[read["frames"][-1]["subtask_index"]] == "done"
     assert read["second_episode_first"]["index"] == read["episodes"][1]["dataset_from_index"]
     assert read["second_episode_first"]["frame_index"] == 0
     assert read["window"] == {

@@ -76,6 +76,13 @@ class AbsoluteTargets:
             data.site_xmat[self._centre].reshape(3, 3).copy(),
         )
 
+    def base_frame(self, state: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """(4, 4) pose of the arm base's frame (the targets' frame) in the world, at ``state``."""
+        _, _, base, base_rot = self._frames(state[1 : 1 + self._model.nq])
+        frame = np.eye(4)
+        frame[:3, :3], frame[:3, 3] = base_rot, base
+        return frame
+
     def of(
         self, states: npt.NDArray[np.float64], actions: npt.NDArray[np.float64]
     ) -> npt.NDArray[np.float64]:

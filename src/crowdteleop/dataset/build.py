@@ -30,6 +30,11 @@ import numpy as np
 from crowdteleop.dataset.absolute import AbsoluteTargets
 from crowdteleop.dataset.env_meta import dataset_env_args
 from crowdteleop.dataset.files import DATASET_FORMAT, DatasetError, DemoSummary
+from crowdteleop.dataset.generation.labels import (
+    stack_labels,
+    targets_in_world,
+    write_datagen_info,
+)
 from crowdteleop.dataset.observations import (
     LOW_DIM,
     ObsSpec,
@@ -297,13 +302,16 @@ def _write_demos(
         )
         replayable = demo_of_episode(episode)
         computed = observe_demo(checker, replayable, obs, lambda: work.add(1))
-        absolute = None
+        absolute, targets_world = None, None
         if arm is not None:
             sim = checker.simulation(replayable)
-            absolute = AbsoluteTargets(sim.kinematics(), arm).of(
-                replayable.states, replayable.actions
-            )
+            targets = AbsoluteTargets(sim.kinematics(), arm)
+            absolute = targets.of(replayable.states, replayable.actions)
+            targets_world = targets_in_world(targets.base_frame(replayable.states[0]), absolute)
         write_demo_pass(group, computed, absolute)
+        # recorded at collection where the recording has them, else computed from its states
+        labels = episode.labels if episode.labels is not None else stack_labels(computed.labels)
+        write_datagen_info(group, labels, replayable.actions, targets_world)
 
 
 def _write_masks(

@@ -136,6 +136,77 @@ def build(
 
 
 @app.command()
+def generate(
+    source: Annotated[Path, typer.Argument(help="labelled dataset (from `dataset build`)")],
+    num: Annotated[int, typer.Option(help="successful demonstrations to generate")] = 100,
+    output: Annotated[
+        Path, typer.Option(help="folder: episodes, attempts.jsonl, demo.hdf5")
+    ] = Path("generated"),
+    workers: Annotated[int, typer.Option(help="local processes running attempts")] = 1,
+    ray: Annotated[
+        str | None,
+        typer.Option(help="run attempts on Ray actors: a cluster address, 'auto' or 'local'"),
+    ] = None,
+    strategy: Annotated[
+        str, typer.Option(help="source per attempt: nearest (object pose) or random")
+    ] = "nearest",
+    per_subtask: Annotated[bool, typer.Option(help="choose a source per subtask")] = False,
+    seed: Annotated[int, typer.Option(help="attempt i is scene seed+i")] = 1_000_000,
+    max_attempts: Annotated[
+        int | None, typer.Option(help="stop after this many attempts (default 20 x --num)")
+    ] = None,
+    build_dataset: Annotated[
+        bool, typer.Option("--build/--no-build", help="build OUT/demo.hdf5 at the end")
+    ] = True,
+) -> None:
+    """New demonstrations from labelled ones, MimicGen's way: each source's subtask segments
+    moved with their objects into new scenes, executed, and kept where the task succeeds
+    (docs/generation.md). Started again on the same OUT, it resumes."""
+    from rich.progress import Progress, TextColumn
+
+    from crowdteleop.dataset.generation.attempt import Settings
+    from crowdteleop.dataset.generation.run import GenerateOptions
+    from crowdteleop.dataset.generation.run import generate as run_generation
+
+    with clear_errors():
+        if strategy not in ("nearest", "random"):
+            raise typer.BadParameter("--strategy is nearest or random")
+        options = GenerateOptions(
+            num=num,
+            workers=workers,
+            ray_address=ray,
+            seed=seed,
+            max_attempts=max_attempts,
+            settings=Settings(strategy=strategy, per_subtask=per_subtask),  # type: ignore[arg-type]
+            build=build_dataset,
+        )
+        columns = progress_columns(TextColumn("{task.fields[attempts]} attempts"))
+        with Progress(*columns, console=console) as bar:
+            job = bar.add_task("generating", total=num, attempts=0)
+
+            def update(successes: int, wanted: int, attempts: int) -> None:
+                bar.update(job, completed=min(successes, wanted), total=wanted, attempts=attempts)
+
+            report = run_generation(source, output, options, update)
+    for why in report.left_out:
+        errors.print(f"[yellow]left out[/yellow] {why}")
+    table = Table(title=f"{report.successes} of {report.attempts} attempts succeeded")
+    table.add_column("why attempts failed")
+    table.add_column("attempts", justify="right")
+    for reason, count in report.reasons.most_common():
+        table.add_row(reason, str(count))
+    console.print(table)
+    console.print(
+        f"{report.sources} sources, subtasks {' -> '.join(report.subtasks)}; success rate "
+        f"{report.success_rate:.0%}; {report.resumed} attempts resumed from an earlier run; "
+        f"{report.seconds:.0f} s" + (f"; dataset {report.dataset}" if report.dataset else "")
+    )
+    if report.successes < num:
+        errors.print(f"[yellow]only {report.successes} of {num} generated[/yellow]")
+        raise typer.Exit(1)
+
+
+@app.command()
 def check(
     path: Annotated[Path, typer.Argument(help="dataset built by `dataset build`")],
     demos: Annotated[int, typer.Option(help="demos to replay in plain robosuite")] = 3,

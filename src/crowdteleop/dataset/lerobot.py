@@ -65,6 +65,7 @@ FEATURE_DTYPES = {  # the non-video features, in the order LeRobot's `create` li
     "action": "float32",
     "next.reward": "float32",
     "next.done": "bool",
+    "subtask_index": "int64",  # ours: the stage (meta/subtasks.parquet), -1 where unlabelled
     "timestamp": "float32",
     "frame_index": "int64",
     "episode_index": "int64",
@@ -154,8 +155,10 @@ def export_lerobot(
                 demo = load_demo(dataset, name)
                 obs = render_observations(checker, demo, cameras, width, height, tick)
                 with h5py.File(dataset, "r") as file:
-                    rewards, dones = (file["data"][name][key][()] for key in ("rewards", "dones"))
-                writer.add_episode(demo, obs, rewards, dones)
+                    group = file["data"][name]
+                    rewards, dones = (group[key][()] for key in ("rewards", "dones"))
+                    subtasks = subtask_names(group)
+                writer.add_episode(demo, obs, rewards, dones, subtasks)
         writer.finish("-".join(robots or ["Sawyer"]).lower())
         if output.exists():
             output.rmdir()  # empty, checked above
@@ -189,10 +192,16 @@ class _Writer:
         self.images = {key: _ImageStats() for key in self.cameras.values()}
         self.episodes: list[dict[str, Any]] = []
         self.tasks: dict[str, int] = {}
+        self.subtasks: dict[str, int] = {}  # "reach (cube)" -> subtask_index
         self.names: tuple[list[str], list[str]] | None = None  # state's, action's
 
     def add_episode(
-        self, demo: Demo, obs: Observations, rewards: npt.NDArray[Any], dones: npt.NDArray[Any]
+        self,
+        demo: Demo,
+        obs: Observations,
+        rewards: npt.NDArray[Any],
+        dones: npt.NDArray[Any],
+        subtasks: list[str] | None = None,
     ) -> None:
         keys = state_keys(list(obs.low_dim))
         widths = {key: obs.low_dim[key].shape[1] for key in keys}
@@ -213,6 +222,11 @@ class _Writer:
             "episode_index": np.full((n, 1), episode),
             "index": np.arange(start, start + n)[:, None],
             "task_index": np.full((n, 1), self.tasks.setdefault(task, len(self.tasks))),
+            "subtask_index": np.array(
+                [self.subtasks.setdefault(s, len(self.subtasks)) for s in subtasks]
+                if subtasks is not None
+                else [-1] * n
+            )[:, None],
         }
         frame = {key: value.astype(FEATURE_DTYPES[key]) for key, value in frame.items()}
         data_file = self.data.append(_frame_table(frame))
@@ -244,7 +258,8 @@ class _Writer:
         for entry in self.episodes:  # placed with a stand-in file index, stamped when written
             meta.append(pa.Table.from_pylist([entry | _indices(0, "meta/episodes/")]))
         meta.flush()
-        _write_tasks(self.root, self.tasks)
+        _write_index(self.root / "meta" / "tasks.parquet", "task", self.tasks)
+        _write_index(self.root / "meta" / "subtasks.parquet", "subtask", self.subtasks)
         stats = {key: _stats(np.concatenate(arrays)) for key, arrays in self.columns.items()}
         stats |= {key: images.result() for key, images in self.images.items()}
         state, action = self.names
@@ -397,15 +412,27 @@ class _ParquetFiles:
         self._pending, self.used = [], 0
 
 
-def _write_tasks(root: Path, tasks: dict[str, int]) -> None:
-    """``meta/tasks.parquet`` as pandas writes a frame indexed by the task string: LeRobot reads
-    it with ``pd.read_parquet`` and takes each frame's task from the index label."""
-    columns = [("task_index", "int64", "int64"), ("task", "unicode", "object")]
+def subtask_names(group: h5py.Group) -> list[str] | None:
+    """Each step's subtask as the export names it ("reach (cube)", "done"), from the demo's
+    labels (``datagen_info``); None for a dataset built before labels existed."""
+    if "datagen_info" not in group:
+        return None
+    info = group["datagen_info"]
+    stages, objects = (info[key].asstr()[()] for key in ("stage", "relative_to"))
+    return [f"{s} ({o})" if o else s for s, o in zip(stages, objects, strict=True)]
+
+
+def _write_index(path: Path, name: str, indices: dict[str, int]) -> None:
+    """``meta/tasks.parquet`` (and ``subtasks.parquet``) as pandas writes a frame indexed by the
+    string: LeRobot reads it with ``pd.read_parquet`` and takes each frame's task from the index
+    label."""
+    columns = [(f"{name}_index", "int64", "int64"), (name, "unicode", "object")]
     described = [
         {"name": n, "field_name": n, "pandas_type": t, "numpy_type": d, "metadata": None}
         for n, t, d in columns
     ]
-    pandas = {"index_columns": ["task"], "column_indexes": [], "columns": described}
-    table = pa.table({"task_index": pa.array(list(tasks.values()), pa.int64()), "task": [*tasks]})
+    pandas = {"index_columns": [name], "column_indexes": [], "columns": described}
+    index = pa.array(list(indices.values()), pa.int64())
+    table = pa.table({f"{name}_index": index, name: [*indices]})
     table = table.replace_schema_metadata({"pandas": json.dumps(pandas)})
-    pq.write_table(table, root / "meta" / "tasks.parquet")
+    pq.write_table(table, path)

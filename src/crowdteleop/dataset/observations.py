@@ -22,7 +22,9 @@ import numpy as np
 import numpy.typing as npt
 
 from crowdteleop.dataset.files import DatasetError
+from crowdteleop.dataset.generation.labels import label_now
 from crowdteleop.dataset.replay import Demo, ReplayChecker
+from crowdteleop.recording.episode_file import StepLabels
 
 LOW_DIM = "low-dim"
 _RGB = re.compile(r"^rgb:(?P<camera>[\w-]+):(?P<width>\d+)x(?P<height>\d+)$")
@@ -83,6 +85,7 @@ class DemoPass:
     next_obs: dict[str, npt.NDArray[np.generic]]
     controller_states: npt.NDArray[np.float64]  # (N, k): before each step
     hand_after_last: npt.NDArray[np.float64]  # (3,)
+    labels: list[StepLabels]  # each state's subtask labels, for a recording made without
 
 
 def observe_demo(
@@ -103,6 +106,7 @@ def observe_demo(
             )
     rows: dict[str, list[npt.NDArray[np.generic]]] = {}
     controller = [sim.controller_state()]
+    labels: list[StepLabels] = []
 
     def observe() -> None:
         if spec.low_dim:
@@ -116,6 +120,7 @@ def observe_demo(
         sim.set_state(state)
         sim.set_controller_state(controller[-1])
         observe()
+        labels.append(label_now(sim))
         sim.step(action)
         controller.append(sim.controller_state())
         if tick is not None:
@@ -128,6 +133,7 @@ def observe_demo(
         next_obs={key: values[1:] for key, values in stacked.items()},
         controller_states=np.array(controller[:-1], dtype=np.float64),
         hand_after_last=hand_after_last,
+        labels=labels,
     )
 
 

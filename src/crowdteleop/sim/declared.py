@@ -71,9 +71,11 @@ class DeclaredChecks:
             return TaskProgress("done", DONE, total, total)
         for index, (stage, check) in enumerate(self._stages):
             if not self._ask(check, stage.done_when):
-                return TaskProgress(stage.name, stage.instruction, index, total)
+                return TaskProgress(
+                    stage.name, stage.instruction, index, total, stage.relative_to or ""
+                )
         last = self._stages[-1][0]
-        return TaskProgress(last.name, last.instruction, total - 1, total)
+        return TaskProgress(last.name, last.instruction, total - 1, total, last.relative_to or "")
 
 
 def generic_progress(instruction: str, success: bool, held: list[str]) -> TaskProgress:
@@ -81,5 +83,5 @@ def generic_progress(instruction: str, success: bool, held: list[str]) -> TaskPr
     if success:
         return TaskProgress("done", DONE, 1, 1)
     if held:
-        return TaskProgress("grasped", f"{held[0]} grasped. {instruction}", 0, 1)
+        return TaskProgress("grasped", f"{held[0]} grasped. {instruction}", 0, 1, held[0])
     return TaskProgress("reach", instruction, 0, 1)

@@ -56,12 +56,17 @@ class ContactEvent:
 
 @dataclass(frozen=True)
 class TaskProgress:
-    """What the UI shows the worker: a stage name, a sentence, and done / total sub-goals."""
+    """What the UI shows the worker: a stage name, a sentence, and done / total sub-goals.
+
+    ``relative_to`` names the object (a key of `Simulation.object_poses`) the stage's motion is
+    relative to ("cube" while reaching for it, "Can/target" while carrying the can to its bin):
+    the subtask labels that demonstration generation segments by. Empty: none (done)."""
 
     stage: str
     message: str
     completed: int
     total: int
+    relative_to: str = ""
 
 
 @dataclass(frozen=True)

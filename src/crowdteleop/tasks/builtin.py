@@ -14,6 +14,7 @@ BUILTIN_TASKS: tuple[TaskSpec, ...] = (
         "Lift",
         "Pick up the red cube and lift it above the table.",
         time_limit_s=60.0,
+        symmetric_objects={"cube": 4},
     ),
     TaskSpec(
         "pick-place",
@@ -21,12 +22,14 @@ BUILTIN_TASKS: tuple[TaskSpec, ...] = (
         "PickPlace",
         "Put the milk, bread, cereal and can each into its own bin.",
         time_limit_s=300.0,
+        symmetric_objects={"Can": 0},
     ),
     TaskSpec(
         "pick-place-can",
         "robosuite",
         "PickPlaceCan",
         "Pick up the can and place it into its bin (bottom right).",
+        symmetric_objects={"Can": 0},
     ),
     TaskSpec(
         "pick-place-milk",
@@ -71,9 +74,20 @@ BUILTIN_TASKS: tuple[TaskSpec, ...] = (
         "Stack",
         "Stack the red cube on the green cube.",
         time_limit_s=90.0,
+        symmetric_objects={"cubeA": 4, "cubeB": 4},
         stages=(
-            Stage("reach", "Reach for the red cube and grasp it.", f"{_STAGES}:holds_cube_a"),
-            Stage("stack", "Red cube grasped: put it on the green cube.", f"{_STAGES}:stacked"),
+            Stage(
+                "reach",
+                "Reach for the red cube and grasp it.",
+                f"{_STAGES}:holds_cube_a",
+                relative_to="cubeA",
+            ),
+            Stage(
+                "stack",
+                "Red cube grasped: put it on the green cube.",
+                f"{_STAGES}:stacked",
+                relative_to="cubeB",
+            ),
         ),
     ),
     TaskSpec(

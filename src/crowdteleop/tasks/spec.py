@@ -42,13 +42,16 @@ REFERENCE_PATTERN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 @dataclass(frozen=True)
 class Stage:
     """One step of a task as the worker sees it: `instruction` shows while the stage is current,
-    and the stage is done once `done_when` (a reference to ``f(env) -> bool``) answers True."""
+    and the stage is done once `done_when` (a reference to ``f(env) -> bool``) answers True.
+    `relative_to` names the object the stage's motion is relative to (a key of the simulation's
+    object poses, e.g. "cubeA"): demonstration generation moves the stage with that object."""
 
     __pydantic_config__ = ConfigDict(extra="forbid")
 
     name: str
     instruction: str
     done_when: str
+    relative_to: str | None = None
 
 
 @dataclass(frozen=True)
@@ -77,6 +80,10 @@ class TaskSpec:
     # bodies (and <asset>s) join the platform's arm and table; a path, or "package:file.xml"
     # inside an installed package. Its `success` (and stages) take a `MujocoScene`.
     scene: str | None = None
+    # Objects a turn about their own vertical (z) axis leaves the same: how many turns make a
+    # full one (4: a cube; 0: any turn, a cylinder). Demonstration generation grasps such an
+    # object the way its source did instead of spinning the hand by a turn that changes nothing.
+    symmetric_objects: dict[str, int] = field(default_factory=dict)
     source: str = "built-in"  # where the declaration came from, for listings and errors
 
     def __post_init__(self) -> None:
@@ -103,13 +110,18 @@ def declaration_problems(task: TaskSpec) -> list[str]:
     for reference in references:
         if reference is not None and not REFERENCE_PATTERN.match(reference):
             problems.append(f"{reference!r} is not a reference 'package.module:function'")
-    problems += _scene_problems(task)
+    problems += _scene_problems(task) + _symmetry_problems(task)
     plan = task.operator_plan
     if plan is not None and ":" in plan and not REFERENCE_PATTERN.match(plan):
         problems.append(f"operator_plan {plan!r} is not a plan's name or 'package.module:plan'")
     if task.env_module is not None and not re.match(r"^[A-Za-z_][\w.]*$", task.env_module):
         problems.append(f"env_module {task.env_module!r} is not a module name")
     return problems
+
+
+def _symmetry_problems(task: TaskSpec) -> list[str]:
+    folds = [f"{name}: {fold}" for name, fold in task.symmetric_objects.items() if fold < 0]
+    return [f"symmetric_objects counts turns (>= 0; 0: any turn), got {folds}"] if folds else []
 
 
 def _scene_problems(task: TaskSpec) -> list[str]:

@@ -222,9 +222,10 @@ class MujocoSimulation:
             return generic_progress(self.task.instruction, success, held)
         if success:
             return TaskProgress("done", "Cube lifted: well done!", 2, 2)
+        cube = self._objects.items[0].name
         if self._grasped():
-            return TaskProgress("grasped", "Cube grasped: now lift it.", 1, 2)
-        return TaskProgress("reach", "Reach for the cube and grasp it.", 0, 2)
+            return TaskProgress("grasped", "Cube grasped: now lift it.", 1, 2, cube)
+        return TaskProgress("reach", "Reach for the cube and grasp it.", 0, 2, cube)
 
     def _grasped(self) -> bool:
         """Both finger pads touch the cube."""

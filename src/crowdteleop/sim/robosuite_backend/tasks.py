@@ -125,9 +125,10 @@ def progress(env: Any, success: bool, grasped: Grasped | None = None) -> TaskPro
     if hasattr(env, "cube"):
         if success:
             return TaskProgress("done", "Cube lifted: well done!", 2, 2)
+        cube = env.cube.name
         if grasped(env.cube):
-            return TaskProgress("grasped", "Cube grasped: now lift it.", 1, 2)
-        return TaskProgress("reach", "Reach for the cube and grasp it.", 0, 2)
+            return TaskProgress("grasped", "Cube grasped: now lift it.", 1, 2, cube)
+        return TaskProgress("reach", "Reach for the cube and grasp it.", 0, 2, cube)
 
     env._check_success()  # refreshes objects_in_bins / objects_on_pegs
     placed_flags = getattr(env, "objects_in_bins", None)
@@ -146,7 +147,13 @@ def progress(env: Any, success: bool, grasped: Grasped | None = None) -> TaskPro
             f"{held[0]} grasped; {placed} of {len(objects)} {noun} {where}.",
             placed,
             len(objects),
+            f"{held[0]}/target",
         )
+    waiting = [obj.name for obj in objects if not placed_flags[all_objects.index(obj)]]
     return TaskProgress(
-        "reach", f"{placed} of {len(objects)} {noun} {where}.", placed, len(objects)
+        "reach",
+        f"{placed} of {len(objects)} {noun} {where}.",
+        placed,
+        len(objects),
+        waiting[0] if waiting else "",
     )
