@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import av
@@ -31,21 +30,6 @@ CAMERA = "observation.images.agentview"
 INSTRUCTION = "Pick up the red cube and lift it above the table."
 N_DEMOS = 3
 runner = CliRunner()
-
-
-@pytest.fixture(scope="module")
-def lerobot_python() -> str:
-    """The python of LeRobot's virtualenv; made once (cached), and a failure to make it fails
-    the test with pip's output: it must not skip in CI."""
-    command = [str(ROOT / "scripts" / "lerobot-venv.sh"), sys.executable]
-    try:
-        made = subprocess.run(command, capture_output=True, text=True, timeout=3600)
-    except subprocess.TimeoutExpired as exc:
-        pytest.fail(f"scripts/lerobot-venv.sh timed out:\n{exc.stdout}\n{exc.stderr}")
-    print(made.stdout, made.stderr)  # in the pytest log of a failing test
-    if made.returncode != 0:
-        pytest.fail(f"scripts/lerobot-venv.sh failed:\n{made.stdout}\n{made.stderr}")
-    return made.stdout.strip().splitlines()[-1]
 
 
 @pytest.fixture(scope="module")

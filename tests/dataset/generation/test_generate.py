@@ -17,7 +17,9 @@ import pytest
 from crowdteleop.dataset.check import check_dataset
 from crowdteleop.dataset.files import DatasetError
 from crowdteleop.dataset.generation.run import GenerateOptions, generate
+from crowdteleop.dataset.lerobot import export_lerobot
 from crowdteleop.recording.episode_file import read_episode
+from tests.dataset.test_lerobot_export import load_with_lerobot
 
 
 def _log(output: Path) -> list[dict]:
@@ -60,6 +62,17 @@ def test_generated_demos_pass_the_field_tools_checks(generated):
     failed = {name: r.detail for name, r in results.items() if r.verdict == "fail"}
     assert not failed
     assert results["env_info + states"].verdict == "pass"  # robosuite playback: states exact
+
+
+@pytest.mark.slow
+def test_lerobot_reads_generated_demos_with_their_subtasks(generated, lerobot_python, tmp_path):
+    output, _ = generated
+    exported = tmp_path / "lerobot"
+    export_lerobot(output / "demo.hdf5", exported, ["agentview"], 64, 48)
+    read = load_with_lerobot(lerobot_python, exported, tmp_path)
+    assert read["num_episodes"] == 3
+    subtasks = {frame["subtask_index"] for frame in read["frames"]}
+    assert len(subtasks) == 3  # reach (cube), grasped (cube), done
 
 
 def test_every_attempt_is_logged_with_its_scene_and_why_it_failed(generated):
