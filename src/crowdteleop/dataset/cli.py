@@ -196,6 +196,12 @@ def generate(
     for reason, count in report.reasons.most_common():
         table.add_row(reason, str(count))
     console.print(table)
+    sources = Table(title="which sources generalize", show_edge=False)
+    for column in ("source demo", "attempts", "succeeded"):
+        sources.add_column(column, justify="left" if column == "source demo" else "right")
+    for name, (tried, kept) in report.by_source.items():
+        sources.add_row(name, str(tried), f"{kept / tried:.0%}")
+    console.print(sources)
     console.print(
         f"{report.sources} sources, subtasks {' -> '.join(report.subtasks)}; success rate "
         f"{report.success_rate:.0%}; {report.resumed} attempts resumed from an earlier run; "

@@ -80,6 +80,8 @@ def test_every_attempt_is_logged_with_its_scene_and_why_it_failed(generated):
     entries = _log(output)
     assert len(entries) == report.attempts
     assert len({e["attempt"] for e in entries}) == len(entries)
+    assert sum(tried for tried, _ in report.by_source.values()) == report.attempts
+    assert sum(kept for _, kept in report.by_source.values()) == report.successes
     for entry in entries:
         assert entry["seed"] == 1_000_000 + entry["attempt"]
         assert entry["success"] == (entry["reason"] == "")
@@ -189,4 +191,5 @@ def test_the_command_line_generates_and_says_why_attempts_failed(lift_sources, t
     )
     assert result.returncode == 0, result.stderr
     assert "attempts succeeded" in result.stdout
+    assert "which sources generalize" in result.stdout and "demo_" in result.stdout
     assert "subtasks reach (cube) -> grasped (cube)" in result.stdout

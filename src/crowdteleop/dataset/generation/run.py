@@ -63,6 +63,8 @@ class GenerationReport:
     attempts: int = 0
     successes: int = 0
     reasons: Counter[str] = field(default_factory=Counter)
+    # per source demo (the first segment's): attempts made from it, and how many succeeded
+    by_source: dict[str, tuple[int, int]] = field(default_factory=dict)
     resumed: int = 0
     seconds: float = 0.0
     dataset: Path | None = None
@@ -260,6 +262,14 @@ def _summarize(report: GenerationReport, done: dict[int, dict[str, Any]]) -> Non
     report.attempts = len(done)
     report.successes = _successes(done)
     report.reasons = Counter(entry["reason"] for entry in done.values() if not entry["success"])
+    tried: Counter[str] = Counter()
+    kept: Counter[str] = Counter()
+    for entry in done.values():
+        if entry.get("sources"):  # a recovered entry has only its episode
+            tried[entry["sources"][0]["demo"]] += 1
+            kept[entry["sources"][0]["demo"]] += bool(entry["success"])
+    order = sorted(tried, key=lambda name: int(name.rsplit("_", 1)[-1]))
+    report.by_source = {name: (tried[name], kept[name]) for name in order}
 
 
 def _recover(
