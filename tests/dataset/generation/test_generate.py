@@ -193,3 +193,30 @@ def test_the_command_line_generates_and_says_why_attempts_failed(lift_sources, t
     assert "attempts succeeded" in result.stdout
     assert "which sources generalize" in result.stdout and "demo_" in result.stdout
     assert "subtasks reach (cube) -> grasped (cube)" in result.stdout
+
+
+def _with_gripper(source: Path, target: Path, open_from_stage: str) -> Path:
+    """A copy of the sources whose gripper stays open from the first step of a stage on."""
+    shutil.copy(source, target)
+    with h5py.File(target, "r+") as file:
+        for name in file["data"]:
+            info = file["data"][name]["datagen_info"]
+            stages = [s.decode() if isinstance(s, bytes) else s for s in info["stage"][()]]
+            first = stages.index(open_from_stage)
+            gripper = info["gripper_action"][()]
+            gripper[first:] = -1.0
+            info["gripper_action"][...] = gripper
+    return target
+
+
+@pytest.mark.parametrize(
+    ("open_from", "reason"),
+    [("reach", "grasp missed (cube)"), ("grasped", "dropped the cube")],
+)
+def test_a_failed_attempt_says_why(lift_sources, tmp_path, open_from, reason):
+    source = _with_gripper(lift_sources.dataset, tmp_path / "open.hdf5", open_from)
+    options = GenerateOptions(num=1, max_attempts=2, build=False)
+    report = generate(source, tmp_path / "out", options)
+    assert report.successes == 0 and report.attempts == 2
+    assert report.reasons == {reason: 2}
+    assert not list((tmp_path / "out" / "episodes").iterdir())  # failures write no episode
