@@ -195,7 +195,7 @@ def generate(
     table.add_column("attempts", justify="right")
     for reason, count in report.reasons.most_common():
         table.add_row(reason, str(count))
-    console.print(table)
+    console.print(table if report.reasons else table.title)
     sources = Table(title="which sources generalize", show_edge=False)
     for column in ("source demo", "attempts", "succeeded"):
         sources.add_column(column, justify="left" if column == "source demo" else "right")
