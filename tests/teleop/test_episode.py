@@ -63,19 +63,19 @@ def test_step_labels_read_the_simulation_and_step_record_keeps_them(tmp_path):
 
     import numpy as np
 
-    from crowdteleop.recording.episode_file import read_episode
+    from crowdteleop.recording.episode_file import StepLabels, read_episode
     from crowdteleop.sim.types import Pose, TaskProgress
-    from crowdteleop.teleop.episode import step_labels, step_record
+    from crowdteleop.teleop.episode import step_record
 
     def pose(x: float) -> Pose:
         return Pose(np.array([x, 0.0, 1.0]), np.array([0.0, 0.0, 0.0, 1.0]))
 
-    sim = SimpleNamespace(  # what step_labels asks of a Simulation
+    sim = SimpleNamespace(  # what StepLabels.read asks of a Simulation
         progress=lambda: TaskProgress("grasped", "...", 1, 2, "Can/target"),
         robot_state=lambda: SimpleNamespace(end_effector=pose(0.5)),
         object_poses=lambda: {"Can": pose(0.1), "Can/target": pose(0.2)},
     )
-    labels = step_labels(sim)
+    labels = StepLabels.read(sim)
     result = SimpleNamespace(reward=0.0, success=False, contacts=[])
     step = SimpleNamespace(action=np.zeros(2), result=result)
     tracker = _tracker(tmp_path)

@@ -22,7 +22,6 @@ import numpy as np
 import numpy.typing as npt
 
 from crowdteleop.dataset.files import DatasetError
-from crowdteleop.dataset.generation.labels import label_now
 from crowdteleop.dataset.replay import Demo, ReplayChecker
 from crowdteleop.recording.episode_file import StepLabels
 
@@ -120,7 +119,7 @@ def observe_demo(
         sim.set_state(state)
         sim.set_controller_state(controller[-1])
         observe()
-        labels.append(label_now(sim))
+        labels.append(StepLabels.read(sim))
         sim.step(action)
         controller.append(sim.controller_state())
         if tick is not None:

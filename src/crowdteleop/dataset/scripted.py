@@ -20,7 +20,7 @@ import numpy as np
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
-from crowdteleop.recording.episode_file import StepLabels, StepRecord
+from crowdteleop.recording.episode_file import CommandRecord, StepLabels, StepRecord
 from crowdteleop.recording.metadata import EpisodeMetadata, episode_metadata
 from crowdteleop.recording.versions import runtime_versions
 from crowdteleop.recording.wal import EpisodeRecorder
@@ -74,6 +74,35 @@ def scripted_rig(
         sim.close()
 
 
+def command_record(command: DeviceCommand, seq: int, wall_s: float, device: str) -> CommandRecord:
+    """A scripted operator's command as the teleop server records a device's."""
+    return {
+        "seq": seq,
+        "client_time_ms": 1000.0 * wall_s,
+        "engaged": bool(command.engaged),
+        "position": np.asarray(command.position).tolist(),
+        "quaternion": np.asarray(command.quaternion).tolist(),
+        "gripper": float(command.gripper_closed),
+        "device": device,
+    }
+
+
+def _start_recording(
+    rig: ScriptedRig, directory: Path, episode_id: str, seed: int
+) -> EpisodeRecorder:
+    """Reset with ``seed`` (as run_episode will) and open the episode's recorder with what
+    this reset made: its model (with the bodies it placed: Door's door) and controller state."""
+    rig.teleop.reset(seed)
+    metadata = rig.metadata.model_copy(
+        update={
+            "reset_seed": seed,
+            "model_xml": rig.sim.mjcf_xml(),
+            "controller_state_at_start": [float(v) for v in rig.sim.controller_state()],
+        }
+    ).to_record()
+    return EpisodeRecorder(directory, episode_id, metadata)
+
+
 def record_scripted_episode(
     rig: ScriptedRig,
     directory: Path,
@@ -91,15 +120,7 @@ def record_scripted_episode(
     extra = dict(extra_metadata or {})
     # reset_seed: replaying OSC actions needs the episode's reset (its null-space posture)
     operator = ScriptedOperator(sim, control.mapping, seed=seed)
-    teleop.reset(seed)  # as run_episode will: the controller state below is the reset's
-    metadata = rig.metadata.model_copy(
-        update={
-            "reset_seed": seed,
-            "model_xml": sim.mjcf_xml(),  # with the bodies this reset placed (Door's door)
-            "controller_state_at_start": [float(v) for v in sim.controller_state()],
-        }
-    ).to_record()
-    recorder = EpisodeRecorder(directory, episode_id, metadata)
+    recorder = _start_recording(rig, directory, episode_id, seed)
     step_once = teleop.step
     timing = {"step": 0.0, "record": 0.0, "step_cpu": 0.0, "record_cpu": 0.0}
 
@@ -107,7 +128,7 @@ def record_scripted_episode(
         state = sim.get_state()
         label_start, label_cpu = time.perf_counter(), time.thread_time()
         # the subtask label of `state`, read before the step as the teleop session does
-        labels = StepLabels.of(sim.progress(), sim.robot_state().end_effector, sim.object_poses())
+        labels = StepLabels.read(sim)
         timing["record"] += time.perf_counter() - label_start
         timing["record_cpu"] += time.thread_time() - label_cpu
         started_wall, started, cpu = time.time(), time.perf_counter(), time.thread_time()
@@ -121,15 +142,9 @@ def record_scripted_episode(
                 index=recorder.steps,
                 state=state,
                 action=np.asarray(step.action, dtype=float),
-                command={
-                    "seq": recorder.steps,
-                    "client_time_ms": 1000.0 * started_wall,
-                    "engaged": bool(command.engaged),
-                    "position": np.asarray(command.position).tolist(),
-                    "quaternion": np.asarray(command.quaternion).tolist(),
-                    "gripper": float(command.gripper_closed),
-                    "device": str(extra.get("interface", "scripted")),
-                },
+                command=command_record(
+                    command, recorder.steps, started_wall, str(extra.get("interface", "scripted"))
+                ),
                 server_time=started_wall,
                 step_duration_s=duration,
                 reward=float(step.result.reward),

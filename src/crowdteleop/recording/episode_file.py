@@ -81,6 +81,13 @@ class StepLabels:
             {str(name): _pose7(pose) for name, pose in objects.items()},
         )
 
+    @classmethod
+    def read(cls, sim: Any) -> StepLabels:
+        """The labels of a simulation's current state (a `crowdteleop.sim` Simulation, duck
+        typed): the one way the teleop session, the scripted rig, ``dataset build`` and
+        generation read them, before stepping, so a row's labels describe its state."""
+        return cls.of(sim.progress(), sim.robot_state().end_effector, sim.object_poses())
+
 
 def _pose7(pose: Any) -> npt.NDArray[np.float64]:
     row = np.empty(7)

@@ -19,7 +19,6 @@ from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.recording.stores import SavedWhen
 from crowdteleop.recording.versions import runtime_versions
 from crowdteleop.recording.wal import EpisodeRecorder
-from crowdteleop.sim.interface import Simulation
 from crowdteleop.vocab import DeviceKind, Outcome
 
 log = logging.getLogger(__name__)
@@ -136,7 +135,7 @@ def step_record(
     labels: StepLabels | None = None,
 ) -> StepRecord:
     """What the recorder stores of one control step (the recorder validates and copies);
-    ``labels`` describe ``state``, as ``step_labels`` reads them before the step."""
+    ``labels`` describe ``state``, as ``StepLabels.read`` reads them before the step."""
     result = step.result
     return StepRecord(
         index=index,
@@ -150,13 +149,6 @@ def step_record(
         contacts=list(map(vars, result.contacts)),
         labels=labels,
     )
-
-
-def step_labels(sim: Simulation) -> StepLabels:
-    """The subtask label of the simulation's current state (stage, the object it is relative
-    to, hand and object poses): read in the sim thread before stepping, so a row's labels
-    describe its state, as an offline pass that set that state would (~40 us on lift)."""
-    return StepLabels.of(sim.progress(), sim.robot_state().end_effector, sim.object_poses())
 
 
 def store_episode(

@@ -21,7 +21,7 @@ from av import VideoFrame
 
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.teleoperator import Teleoperator
-from crowdteleop.recording.episode_file import CommandRecord, RecordingError
+from crowdteleop.recording.episode_file import CommandRecord, RecordingError, StepLabels
 from crowdteleop.recording.metadata import episode_metadata
 from crowdteleop.recording.storage import EpisodeStorage, disk_is_full
 from crowdteleop.sim.factory import make_simulation
@@ -33,7 +33,6 @@ from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.episode import (
     EpisodeTracker,
     FinishedEpisode,
-    step_labels,
     step_record,
     store_episode,
 )
@@ -295,7 +294,7 @@ class TeleopSession:
         """Runs in the simulation thread."""
         sim = self.teleop.sim
         state = sim.get_state() if self.tracker.recording else None
-        labels = step_labels(sim) if state is not None else None  # of `state`, before the step
+        labels = StepLabels.read(sim) if state is not None else None  # of `state`, before the step
         started_wall, started = time.time(), time.perf_counter()
         step = self.teleop.step(command)
         duration = time.perf_counter() - started

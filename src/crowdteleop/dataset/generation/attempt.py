@@ -20,7 +20,6 @@ import numpy.typing as npt
 
 from crowdteleop.control.scripted.episode import SUCCESS_HOLD_STEPS
 from crowdteleop.dataset.absolute import AbsoluteTargets
-from crowdteleop.dataset.generation.labels import label_now
 from crowdteleop.dataset.generation.poses import (
     Matrix,
     distance,
@@ -91,7 +90,7 @@ class _Executor:
         self._to_base = inverse(absolute.base_frame(sim.get_state()))
         self.attempt = attempt
         self.held = 0  # steps success has held
-        self.label = label_now(sim)
+        self.label = StepLabels.read(sim)
 
     def step(self, target: Matrix, gripper: float) -> None:
         sim, attempt = self.sim, self.attempt
@@ -108,7 +107,7 @@ class _Executor:
         attempt.successes.append(bool(result.success))
         attempt.contacts.append([vars(c) for c in result.contacts])
         self.held = self.held + 1 if result.success else 0
-        self.label = label_now(sim)
+        self.label = StepLabels.read(sim)
 
     def touched(self) -> set[str]:
         return {c["object"] for c in self.attempt.contacts[-1]} if self.attempt.contacts else set()

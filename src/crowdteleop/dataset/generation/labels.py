@@ -4,7 +4,7 @@ and keys, plus ours) and read back by generation.
 
 Labels are a function of the state: the teleop server records them as it runs
 (`crowdteleop.recording.episode_file.StepLabels`), and ``dataset build`` computes them from the
-states of a recording made before they existed (`label_now` on each state it sets).
+states of a recording made before they existed (`StepLabels.read` on each state it sets).
 
 ``data/demo_k/datagen_info`` (docs/dataset.md):
 
@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from typing import Any
 
 import h5py
 import numpy as np
@@ -34,11 +33,6 @@ from crowdteleop.recording.episode_file import EpisodeLabels, StepLabels
 
 GROUP = "datagen_info"
 NAME_SLASH = "::"  # "/" in an object's name, inside an HDF5 path
-
-
-def label_now(sim: Any) -> StepLabels:
-    """The labels of the simulation's current state."""
-    return StepLabels.of(sim.progress(), sim.robot_state().end_effector, sim.object_poses())
 
 
 def stack_labels(steps: list[StepLabels]) -> EpisodeLabels:
