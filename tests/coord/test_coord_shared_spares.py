@@ -12,7 +12,9 @@ import time
 from pathlib import Path
 
 from crowdteleop.coord.db.engine import make_engine, migrate
+from crowdteleop.coord.db.spare_registry import SpareKey
 from crowdteleop.coord.db.store import Store
+from crowdteleop.coord.fleet.cluster import ClusterRoom
 from crowdteleop.coord.guard.session_keys import SessionKeys
 from crowdteleop.coord.service.coordinator import Coordinator
 from tests.fixtures.coord import FakeCluster, coord_config
@@ -116,3 +118,36 @@ async def scenario(tmp_path: Path, database: str) -> None:
 
 def test_replicas_keep_one_spare_together_and_any_of_them_hands_it_out(tmp_path, shared_database):
     asyncio.run(asyncio.wait_for(scenario(tmp_path, shared_database), 60))
+
+
+async def rooms_while_a_spare_is_handed_out(database: str) -> list[int]:
+    """The cluster's room for sessions at each step of a spare's life, one spare wanted."""
+    await migrate(database)
+    store = Store(make_engine(database))
+    key: SpareKey = ("lift", "Panda", "osc")
+
+    async def wanted() -> dict[SpareKey, int]:
+        return {key: 1}
+
+    registry = store.spare_registry("a")
+    room = ClusterRoom(FakeCluster(SLOTS), registry, wanted)
+    try:
+        rooms = [await room.sessions()]  # none listed yet: its slot is kept for it
+        await registry.add("spare-1", key)
+        await registry.ready("spare-1", "http://127.0.0.1:1", "fake-1")
+        rooms.append(await room.sessions())
+        await registry.claim(key, any_replica=True)  # given to a worker, not yet replaced
+        rooms.append(await room.sessions())
+        for extra in ("spare-2", "spare-3"):  # more than wanted (the setting was lowered)
+            await registry.add(extra, key)
+        rooms.append(await room.sessions())
+        return rooms
+    finally:
+        await store.close()
+
+
+def test_a_spare_given_to_a_worker_keeps_its_slot_for_its_replacement(database_url):
+    """Were the slot free between the hand-over and the replacement's listing, a session
+    admitted then would take it: one session more than the cluster holds (CI saw 4 of 3)."""
+    rooms = asyncio.run(rooms_while_a_spare_is_handed_out(database_url))
+    assert rooms == [SLOTS - 1, SLOTS - 1, SLOTS - 1, SLOTS - 2]

@@ -107,7 +107,7 @@ class Coordinator:
             self._spare_targets,
             lambda session_id: session_id in self._launches,
         )
-        self._cluster = ClusterRoom(launcher, self._spare_registry)
+        self._cluster = ClusterRoom(launcher, self._spare_registry, self._spare_targets)
         self._replication = Replication(
             self._sessions, self._pool, launcher, self._replicas, self._metrics
         )
