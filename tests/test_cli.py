@@ -84,6 +84,31 @@ def test_the_bot_needs_the_admin_token():
     assert result.returncode == 2 and "--admin-token" in result.stdout
 
 
+def test_the_bot_offers_synthetic_workers_of_known_skill():
+    import os
+
+    run = subprocess.run(
+        [sys.executable, "-m", "crowdteleop", "bot", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "COLUMNS": "200"},
+    )
+    assert run.returncode == 0
+    assert "--skill" in run.stdout and "expert|intermediate|novice" in run.stdout
+
+
+def test_an_unknown_skill_is_a_clear_error():
+    run = crowdteleop("bot", "--admin-token", "admin-token", "--skill", "guru")
+    output = " ".join((run.stdout + run.stderr).split())
+    assert run.returncode == 2 and "'guru' is not one of" in output and "novice" in output
+    crowd = crowdteleop(
+        "bot", "--admin-token", "a", "--coordinator", "http://127.0.0.1:9", "--skills", "novice,x"
+    )
+    assert crowd.returncode == 2 and "unknown skill(s) 'x'" in crowd.stdout
+    assert "Traceback" not in run.stderr + crowd.stderr
+
+
 def test_a_bad_option_is_named_in_the_error():
     run = crowdteleop("teleop-server", "--task", "lift", "--token", "short", "--port", "0")
     assert run.returncode == 2

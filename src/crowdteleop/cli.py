@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, cast
 
 import typer
 import typer.main
@@ -18,7 +18,7 @@ from typer.core import TyperGroup
 from crowdteleop.coord.cli import serve  # typer only: its imports are inside the command
 from crowdteleop.errors import CrowdteleopError
 from crowdteleop.tasks import task_names
-from crowdteleop.vocab import ControllerName
+from crowdteleop.vocab import SKILL_NAMES, ControllerName, SkillName
 
 if TYPE_CHECKING:  # `crowdteleop --help` loads no simulator
     from crowdteleop.control.scripted import EpisodeResult
@@ -231,6 +231,17 @@ def bot(
     json_out: Annotated[
         Path | None, typer.Option("--json", help="with --coordinator: per-bot report file")
     ] = None,
+    skill: Annotated[
+        SkillName | None,
+        typer.Option(
+            help="a synthetic worker of known skill (docs/quality.md); default: the steady "
+            "scripted operator"
+        ),
+    ] = None,
+    skills: Annotated[
+        str | None,
+        typer.Option(help="with --coordinator: skills the bots take in turn, e.g. novice,expert"),
+    ] = None,
 ) -> None:
     """Drive a running teleop session with a scripted operator, through the network; or, with
     --coordinator, join COUNT bots as workers and report what each lived through."""
@@ -238,12 +249,26 @@ def bot(
         console.print("[red]error:[/red] the bot needs --admin-token (it reads object poses)")
         raise typer.Exit(2)
     if coordinator is not None:
-        _crowd(coordinator, admin_token, count, campaign, task, phone_every, timeout, json_out)
+        crowd_skills = _skill_list(skills) if skills is not None else (skill,) if skill else ()
+        _crowd(
+            coordinator,
+            admin_token,
+            count,
+            campaign,
+            task,
+            phone_every,
+            timeout,
+            json_out,
+            crowd_skills,
+        )
         return
+    if skills is not None:
+        console.print("[red]error:[/red] --skills is for a crowd (--coordinator); use --skill")
+        raise typer.Exit(2)
     from crowdteleop.client.bot import main as run_bot
 
     try:
-        result = run_bot(url, token, admin_token, episodes, timeout)
+        result = run_bot(url, token, admin_token, episodes, timeout, skill)
     except (ConnectionError, TimeoutError, OSError) as exc:
         console.print(f"[red]error:[/red] {exc}")
         raise typer.Exit(1) from exc
@@ -251,6 +276,19 @@ def bot(
         f"{result.successes}/{len(result.episodes)} episodes succeeded "
         f"({', '.join(result.episodes)}) in {result.seconds:.1f} s"
     )
+
+
+def _skill_list(text: str) -> tuple[SkillName, ...]:
+    """`--skills novice,expert` as skill names; an unknown one is an error naming the known."""
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    unknown = [name for name in names if name not in SKILL_NAMES]
+    if unknown or not names:
+        console.print(
+            f"[red]error:[/red] unknown skill(s) {', '.join(map(repr, unknown)) or repr(text)};"
+            f" known: {', '.join(SKILL_NAMES)}"
+        )
+        raise typer.Exit(2)
+    return tuple(cast("SkillName", name) for name in names)
 
 
 def _crowd(
@@ -262,6 +300,7 @@ def _crowd(
     phone_every: int,
     timeout: float,
     json_out: Path | None,
+    skills: tuple[SkillName, ...] = (),
 ) -> None:
     import asyncio
 
@@ -272,7 +311,13 @@ def _crowd(
         console.print(f"[red]error:[/red] unknown task {task!r}; known: {', '.join(task_names())}")
         raise typer.Exit(2)
     settings = CrowdSettings(
-        coordinator, admin_token, campaign, task, session_timeout_s=timeout, phone_every=phone_every
+        coordinator,
+        admin_token,
+        campaign,
+        task,
+        session_timeout_s=timeout,
+        phone_every=phone_every,
+        skills=skills,
     )
     with console.status(f"{count} bot(s) joining {coordinator} ..."):
         reports = asyncio.run(run_crowd(settings, count))

@@ -29,6 +29,11 @@ drives; the clutch is let go; it drives; pressed before the device sent a pose; 
 video stopped; the picture is back but the press is from before it stopped (let go, press)."""
 CLUTCH_STATES: tuple[ClutchState, ...] = get_args(ClutchState)
 
+SkillName = Literal["expert", "intermediate", "novice"]
+"""How skilled a synthetic worker is (`crowdteleop bot --skill`): the scripted operator's
+`OperatorStyle` for each level is `control.scripted.skills.SKILLS`."""
+SKILL_NAMES: tuple[SkillName, ...] = get_args(SkillName)
+
 ControllerName = Literal["ik-velocity", "osc"]
 """The control law turning a desired end-effector pose into simulation actions."""
 CONTROLLERS: tuple[ControllerName, ...] = get_args(ControllerName)

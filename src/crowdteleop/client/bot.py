@@ -17,9 +17,11 @@ import numpy as np
 from crowdteleop.client.connection import TeleopClient
 from crowdteleop.control.config import MappingConfig
 from crowdteleop.control.scripted.operator import OperatorStyle, ScriptedOperator
+from crowdteleop.control.scripted.skills import style_for
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.types import Pose, RobotState
 from crowdteleop.teleop.protocol import PrivilegedState
+from crowdteleop.vocab import SkillName
 
 # Steps a finished plan waits for its episode to end before asking for a new scene: past the
 # server's success hold (`TeleopConfig.success_hold_steps`, 10), since some tasks succeed only
@@ -199,9 +201,12 @@ async def run_bot(
     episodes: int = 1,
     timeout_s: float = 300.0,
     seed: int = 0,
+    skill: SkillName | None = None,
 ) -> BotResult:
+    """One bot driving the session at `url`; `skill` names its operator's style (None: the
+    default operator)."""
     client = TeleopClient(url, token, role="admin", admin_token=admin_token, device="bot")
-    bot = Bot(client, seed=seed)
+    bot = Bot(client, style=style_for(skill), seed=seed)
     await client.connect()
     try:
         return await bot.run(episodes, timeout_s)
@@ -209,5 +214,12 @@ async def run_bot(
         await client.close()
 
 
-def main(url: str, token: str, admin_token: str, episodes: int, timeout_s: float) -> BotResult:
-    return asyncio.run(run_bot(url, token, admin_token, episodes, timeout_s))
+def main(
+    url: str,
+    token: str,
+    admin_token: str,
+    episodes: int,
+    timeout_s: float,
+    skill: SkillName | None = None,
+) -> BotResult:
+    return asyncio.run(run_bot(url, token, admin_token, episodes, timeout_s, skill=skill))

@@ -16,8 +16,10 @@ import numpy as np
 
 from crowdteleop.client.bot import Bot
 from crowdteleop.client.connection import TeleopClient
+from crowdteleop.control.scripted.skills import style_for
 from crowdteleop.crowd.api import WorkerApi
 from crowdteleop.teleop.messages import OfferAnswer
+from crowdteleop.vocab import SkillName
 
 
 @dataclass
@@ -32,6 +34,9 @@ class CrowdSettings:
     queue_timeout_s: float = 600.0
     session_timeout_s: float = 900.0
     phone_every: int = 0  # every k-th bot drives from a paired phone (0: none)
+    # The bots' skills (`control.scripted.skills`), taken in turn: bot i has skills[i % n].
+    # Empty: every bot is the default scripted operator.
+    skills: tuple[SkillName, ...] = ()
     # Load tests: drive for warmup_s + window_s after the first frame, measure in the window,
     # then leave (no completion code expected).
     window_s: float | None = None
@@ -46,6 +51,7 @@ class WorkerReport:
     """One bot's visit, in the figures a worker's experience is judged by."""
 
     name: str
+    skill: SkillName | None = None  # the synthetic worker's skill (None: the default operator)
     session_id: str = ""
     task: str = ""
     device: str = "bot"  # what drove: the page (bot) or a paired phone
@@ -127,7 +133,12 @@ async def _one_robot(
             report.first_frame_s = time.monotonic() - joined_at
         if settings.window_s is None:  # the bot drives from the moment it exists
             await _wait_for_gate(settings.start_gate)
-        bot = Bot(driver, seed=index + 1000 * report.reconnects, observer=observer)
+        bot = Bot(
+            driver,
+            style=style_for(report.skill),
+            seed=index + 1000 * report.reconnects,
+            observer=observer,
+        )
         streaming = asyncio.create_task(bot.stream(30.0))
         try:
             if settings.window_s is not None:
@@ -227,6 +238,8 @@ async def visit(http: aiohttp.ClientSession, settings: CrowdSettings, index: int
     """One bot's whole visit; a failure is reported in `error`, never raised."""
     name = f"bot-{index:03d}"
     report = WorkerReport(name=name)
+    if settings.skills:
+        report.skill = settings.skills[index % len(settings.skills)]
     api = WorkerApi(http, settings.coordinator_url, settings.campaign)
     joined_at = time.monotonic()
     try:

@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from crowdteleop.recording.versions import runtime_versions
 from crowdteleop.recording.wal import EpisodeRecorder
 from crowdteleop.sim.interface import Simulation
 from crowdteleop.vocab import ControllerName, Outcome
+
+if TYPE_CHECKING:  # the operator (scipy) loads with the first episode, as run_episode does
+    from crowdteleop.control.scripted.operator import OperatorStyle
 
 
 @dataclass(frozen=True)
@@ -111,15 +114,17 @@ def record_scripted_episode(
     extra_metadata: dict[str, Any] | None = None,
     time_limit_s: float | None = None,
     finalize: bool = True,
+    style: OperatorStyle | None = None,
 ) -> ScriptedEpisode:
     """One scripted episode recorded into ``directory/<episode_id>.hdf5``; with ``finalize``
-    False the recorder is left open, as the teleop server hands it to ``store_episode``."""
+    False the recorder is left open, as the teleop server hands it to ``store_episode``.
+    ``style``: the operator's (``control.scripted.skills.SKILLS``); None, the default one."""
     from crowdteleop.control.scripted import ScriptedOperator, run_episode
 
     sim, teleop, control = rig.sim, rig.teleop, rig.control
     extra = dict(extra_metadata or {})
     # reset_seed: replaying OSC actions needs the episode's reset (its null-space posture)
-    operator = ScriptedOperator(sim, control.mapping, seed=seed)
+    operator = ScriptedOperator(sim, control.mapping, style=style, seed=seed)
     recorder = _start_recording(rig, directory, episode_id, seed)
     step_once = teleop.step
     timing = {"step": 0.0, "record": 0.0, "step_cpu": 0.0, "record_cpu": 0.0}

@@ -1,9 +1,14 @@
-"""A scripted operator: follows a plan's waypoints by moving a virtual phone, clutch and all."""
+"""A scripted operator: follows a plan's waypoints by moving a virtual phone, clutch and all.
+
+Its `OperatorStyle` makes it as human as wanted: slower, shaky (tremor), slow to react, past
+the mark and back (overshoot and correction), lost in thought (idle pauses), unsure of a grasp
+(gripper chatter) and clumsy (a drop while carrying). `skills.SKILLS` names three levels.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -16,9 +21,18 @@ from crowdteleop.control.scripted.plans import ScriptedScene, plan_for
 from crowdteleop.control.scripted.waypoints import Waypoint
 from crowdteleop.sim.types import Pose
 
+CHATTER_CLOSED_S = 0.2  # a hesitant grasp: the gripper closes this long, then
+CHATTER_OPEN_S = 0.3  # opens this long, once or twice, before it closes for good
+# A drop: a quarter of the way along a carrying leg (early enough that a lift has not yet
+# counted as a success), the gripper opens this long, then closes again (on nothing).
+DROP_AT_FRACTION = 0.25
+DROP_OPEN_S = 0.5
+
 
 class OperatorStyle(BaseModel):
-    """How human the operator looks. The defaults are a calm, steady person."""
+    """How human the operator looks. The defaults are a calm, steady person, and exactly the
+    operator of before the human traits: a trait at its default draws no random numbers, so a
+    seed drives the same episode it always did."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -29,6 +43,37 @@ class OperatorStyle(BaseModel):
         0.0, ge=0, le=1, description="chance to pause per waypoint"
     )
     hesitation_s: tuple[float, float] = (0.2, 1.0)
+    reaction_s: float = Field(
+        0.0, ge=0, le=5.0, description="pause before setting off to each new waypoint (s)"
+    )
+    overshoot_fraction: float = Field(
+        0.0,
+        ge=0,
+        le=1.0,
+        description="aim past a waypoint by this fraction of the leg's length, then come back "
+        "(never below the waypoint's height: no pushing into the table)",
+    )
+    overshoot_probability: float = Field(
+        1.0, ge=0, le=1, description="chance per waypoint that an overshoot happens"
+    )
+    idle_probability: float = Field(
+        0.0, ge=0, le=1, description="chance per waypoint of a long idle pause before it"
+    )
+    idle_s: tuple[float, float] = (3.0, 10.0)
+    hesitant_grasp_probability: float = Field(
+        0.0,
+        ge=0,
+        le=1,
+        description="chance per grasp that the gripper closes and reopens once or twice "
+        "within about a second before it closes for good (gripper chatter)",
+    )
+    drop_probability: float = Field(
+        0.0,
+        ge=0,
+        le=1,
+        description="chance per carrying waypoint (gripper closed before and after) that the "
+        "gripper opens once on the way there: the object drops, the plan goes on",
+    )
     device_origin: tuple[float, float, float] = (0.1, -0.2, 1.2)  # where the phone starts
 
 
@@ -40,7 +85,13 @@ class _Leg:
     start: Pose
     elapsed_s: float = 0.0
     dwell_s: float = 0.0
-    pause_s: float = 0.0
+    pause_s: float = 0.0  # hesitation: counts toward the waypoint's timeout
+    wait_s: float = 0.0  # reaction and idle time: does not count toward the timeout
+    aim: Pose | None = None  # the overshoot target, until the hand has reached it
+    # gripper chatter still to do: (seconds, closed) segments before the waypoint's gripper
+    chatter: list[tuple[float, bool]] = field(default_factory=list)
+    drop_after_m: float | None = None  # open the gripper once the hand has moved this far
+    drop_s: float = 0.0  # the gripper is open for a drop this much longer
 
 
 class ScriptedOperator:
@@ -76,6 +127,11 @@ class ScriptedOperator:
     def anchored(self) -> bool:
         """Whether the clutch press that anchors the device to the arm has been issued."""
         return self._plan is not None
+
+    @property
+    def waypoint(self) -> Waypoint | None:
+        """The waypoint the operator is heading for (None before the first, after the last)."""
+        return None if self._leg is None or self.finished else self._leg.waypoint
 
     @property
     def stage(self) -> str:
@@ -117,12 +173,19 @@ class ScriptedOperator:
             return
         leg = self._leg
         assert leg is not None and self._hand is not None
+        if leg.wait_s > 0:
+            leg.wait_s -= self._dt
+            return
         leg.elapsed_s += self._dt
         if leg.pause_s > 0:
             leg.pause_s -= self._dt
             return
-        self._hand = self._move_toward(self._hand, leg.waypoint.pose)
-        self._gripper_closed = leg.waypoint.gripper_closed
+        self._hand = self._move_toward(self._hand, leg.aim or leg.waypoint.pose)
+        if leg.aim is not None and np.array_equal(self._hand.position, leg.aim.position):
+            leg.aim = None  # past the mark: correct back to it
+        self._gripper_closed = self._gripper_for(leg)
+        if leg.aim is not None or leg.chatter:
+            return  # neither overshot nor done hesitating: not there yet
         arrived = (
             np.linalg.norm(end_effector.position - leg.waypoint.pose.position)
             < leg.waypoint.tolerance_m
@@ -141,8 +204,67 @@ class ScriptedOperator:
         pause = 0.0
         if self._rng.random() < self.style.hesitation_probability:
             pause = self._rng.uniform(*self.style.hesitation_s)
-        self._leg = _Leg(waypoint, self._hand, pause_s=pause)
+        self._leg = _Leg(waypoint, self._hand, pause_s=pause, wait_s=self._wait())
+        self._leg.aim = self._overshoot(waypoint)
+        if waypoint.gripper_closed and not self._gripper_closed:
+            self._leg.chatter = self._chatter()
+        elif waypoint.gripper_closed and self._chance(self.style.drop_probability):
+            length = float(np.linalg.norm(waypoint.pose.position - self._hand.position))
+            self._leg.drop_after_m = DROP_AT_FRACTION * length
         return True
+
+    # --- human traits ----------------------------------------------------------------------
+    def _chance(self, probability: float) -> bool:
+        """A draw that happens: no random number is drawn for a trait that cannot happen, so
+        styles without it keep the exact episodes of their seeds."""
+        if probability <= 0.0:
+            return False
+        return probability >= 1.0 or bool(self._rng.random() < probability)
+
+    def _wait(self) -> float:
+        """Reaction time, and now and then a long idle pause, before setting off."""
+        wait = self.style.reaction_s
+        if self._chance(self.style.idle_probability):
+            wait += float(self._rng.uniform(*self.style.idle_s))
+        return wait
+
+    def _overshoot(self, waypoint: Waypoint) -> Pose | None:
+        """Where to aim past `waypoint` along the leg (None: straight there), never below it."""
+        assert self._hand is not None
+        if self.style.overshoot_fraction <= 0 or not self._chance(self.style.overshoot_probability):
+            return None
+        goal = waypoint.pose.position
+        aim = goal + self.style.overshoot_fraction * (goal - self._hand.position)
+        aim[2] = max(aim[2], goal[2])
+        if np.linalg.norm(aim - goal) < 1e-6:
+            return None  # a turn on the spot, or straight down: nothing to overshoot
+        return Pose(aim, waypoint.pose.quaternion)
+
+    def _chatter(self) -> list[tuple[float, bool]]:
+        """A hesitant grasp's gripper: closed and open again, once or twice."""
+        if not self._chance(self.style.hesitant_grasp_probability):
+            return []
+        times = int(self._rng.integers(1, 3))
+        return [(CHATTER_CLOSED_S, True), (CHATTER_OPEN_S, False)] * times
+
+    def _gripper_for(self, leg: _Leg) -> bool:
+        """The gripper this step: chattering, dropping, or as the waypoint wants it."""
+        if leg.chatter:
+            seconds, closed = leg.chatter[0]
+            seconds -= self._dt
+            leg.chatter[0] = (seconds, closed)
+            if seconds <= 1e-9:
+                leg.chatter.pop(0)
+            return closed
+        assert self._hand is not None
+        if leg.drop_after_m is not None and (
+            np.linalg.norm(self._hand.position - leg.start.position) >= leg.drop_after_m
+        ):
+            leg.drop_after_m, leg.drop_s = None, DROP_OPEN_S
+        if leg.drop_s > 0:
+            leg.drop_s -= self._dt
+            return False
+        return leg.waypoint.gripper_closed
 
     def _move_toward(self, hand: Pose, goal: Pose) -> Pose:
         """One control period of steady hand motion toward `goal`."""
