@@ -45,7 +45,9 @@ def _session(worker_id: str, sid: str, created_at: float, state: str = "queued")
     )
 
 
-def _episode(eid: str, sid: str, outcome: str = "success") -> Episode:
+def _episode(
+    eid: str, sid: str, outcome: str = "success", metrics: dict | None = None, task: str = "lift"
+) -> Episode:
     return Episode(
         episode_id=eid,
         session_id=sid,
@@ -56,9 +58,10 @@ def _episode(eid: str, sid: str, outcome: str = "success") -> Episode:
         duration_s=4.0,
         uri="file:///x.hdf5",
         interface="phone",
-        task="lift",
+        task=task,
         telemetry={"fps": 20},
         created_at=time.time(),
+        metrics=metrics,
     )
 
 
@@ -159,6 +162,35 @@ def test_episode_reports_count_once(database_url):
     assert results == [(True, 1), (False, 1), (True, 1), (True, 2)]
     assert [e.episode_id for e in episodes] == ["e1", "e2", "e3"]
     assert kinds.count("episode") == 3 and kinds[0] == "queued"
+
+
+def test_each_numeric_metric_is_a_row_and_a_tasks_distribution_one_query(database_url):
+    async def scenario():
+        store = await _store(database_url)
+        try:
+            worker, _, _ = await store.workers.join("default", "anonymous", None)
+            sid = "s_0000000000000001"
+            await store.sessions.add_session(_session(worker.id, sid, time.time()))
+            for eid, idle, task in [("e1", 0.4, "lift"), ("e2", 0.1, "lift"), ("e3", 0.2, "door")]:
+                metrics = {"idle_fraction": idle, "clutch_reanchors": 2, "longest_pause_stage": "x"}
+                await store.episodes.add_episode(_episode(eid, sid, metrics=metrics, task=task))
+            await store.episodes.add_episode(_episode("e1", sid, metrics={"idle_fraction": 9.0}))
+            await store.episodes.add_episode(_episode("e4", sid))  # reported unmeasured
+            return (
+                await store.episodes.metric_values("idle_fraction", "lift"),
+                await store.episodes.metric_values("idle_fraction"),
+                await store.episodes.metric_values("clutch_reanchors"),
+                await store.episodes.metric_values("longest_pause_stage"),
+                [e.metrics for e in await store.episodes.episodes(sid)],
+            )
+        finally:
+            await store.close()
+
+    lift, every, reanchors, stages, kept = _run(scenario())
+    assert lift == [0.1, 0.4], "ascending, of the task's episodes; the retried report ignored"
+    assert every == [0.1, 0.2, 0.4] and reanchors == [2.0, 2.0, 2.0]
+    assert stages == [], "a stage's name is kept with the episode, not as a number"
+    assert kept[0]["longest_pause_stage"] == "x" and kept[-1] is None
 
 
 def test_pairing_codes_are_single_use_and_expire(database_url):

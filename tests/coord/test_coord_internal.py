@@ -58,6 +58,7 @@ def reporting(tmp_path, database_url):
             body = "{" + ",".join(f'"{k}": {v}' for k, v in fields.items()) + "}"
             return client.post("/internal/episodes", content=body, headers=headers)
 
+        post.session_id = sid  # type: ignore[attr-defined]
         yield client, Api(client), post
 
 
@@ -144,3 +145,47 @@ def test_metrics_show_demos_of_the_last_hour_and_the_spool_and_report_backlogs(t
             time.sleep(0.1)
         assert _metric(client, "crowdteleop_reports_pending") == 2
         assert _metric(client, "crowdteleop_servers_unable_to_report") == 1
+
+
+def test_reported_metrics_are_scored_against_the_campaign_and_flagged_with_reasons(reporting):
+    """Scores are percentiles among the campaign's successful episodes of the task so far
+    (itself included): the first is 50; a slower, idler one after it scores below it."""
+    client, _api, post = reporting
+    smooth = {
+        "completion_time_s": 3.0,
+        "idle_fraction": 0.05,
+        "path_ratio": 1.1,
+        "jerk_rms_m_s3": 20.0,
+        "sparc": -2.0,
+        "gripper_chatter": 0,
+        "setbacks": 0,
+        "clutch_reanchors": 0,
+    }
+    idle = {
+        **smooth,
+        "completion_time_s": 20.0,
+        "idle_fraction": 0.6,
+        "longest_pause_s": 11.0,
+        "longest_pause_stage": "reach",
+        "setbacks": 1,
+        "first_setback": "grasped -> reach at 9.0 s",
+    }
+    for metrics in (smooth, idle):
+        assert post(metrics=json.dumps(metrics)).status_code == 200
+    assert post(metrics='{"completion_time_s": "slow"}').status_code == 422
+    assert post(metrics='{"completion_time_s": NaN}').status_code == 422, "a metric it needs"
+    path = f"/api/admin/sessions/{post.session_id}/episodes"
+    episodes = client.get(path, headers=_admin()).json()
+    first, second = episodes
+    assert first["score"] == 50.0 and first["flags"] == []
+    assert second["score"] < first["score"]
+    assert second["metrics"]["longest_pause_stage"] == "reach"
+    reasons = {flag["metric"]: flag["reason"] for flag in second["flags"]}
+    assert reasons == {
+        "longest_pause_s": "idle 11 s in the 'reach' stage",
+        "setbacks": "went back a stage (grasped -> reach at 9.0 s): dropped or lost the object",
+    }
+
+
+def _admin() -> dict[str, str]:
+    return {"Authorization": f"Bearer {ADMIN}"}

@@ -8,6 +8,7 @@ import json
 import subprocess
 import sys
 
+import httpx
 import pytest
 
 from crowdteleop.crowd.report import summary
@@ -33,6 +34,14 @@ def test_three_bots_join_through_the_coordinator_and_complete_lift_concurrently(
             coord.url, ADMIN, campaign="crowd", task="lift", session_timeout_s=300, phone_every=3
         )
         reports = asyncio.run(asyncio.wait_for(run_crowd(settings, 3), 600))
+        recorded = [
+            episode
+            for report in reports
+            for episode in httpx.get(
+                f"{coord.url}/api/admin/sessions/{report.session_id}/episodes",
+                headers={"Authorization": f"Bearer {ADMIN}"},
+            ).json()
+        ]
 
     for report in reports:
         assert report.error is None, f"{report.name}: {report.error}"
@@ -45,6 +54,14 @@ def test_three_bots_join_through_the_coordinator_and_complete_lift_concurrently(
     assert len({report.session_id for report in reports}) == 3, "a robot each"
     assert len({report.completion_code for report in reports}) == 3
     assert summary(reports)["completed"] == 3
+    # Every demonstration was measured as it was stored, and the coordinator keeps it (issue 29).
+    for episode in (e for e in recorded if e["outcome"] == "success"):
+        metrics = episode["metrics"]
+        assert metrics["completion_time_s"] == pytest.approx(episode["steps"] / 20)
+        assert 0.05 < metrics["path_length_m"] < 3.0, metrics
+        assert metrics["path_ratio"] >= 1.0 and metrics["clutch_reanchors"] >= 0, metrics
+        assert 0.0 <= metrics["joint_limit_fraction"] <= 1.0, metrics
+        assert metrics["latency_p50_ms"] > 0, "the bots' measured latency, from the server"
 
 
 def test_a_crowd_without_the_admin_token_is_refused_before_joining():

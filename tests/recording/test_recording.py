@@ -421,7 +421,10 @@ def test_round_trip_property(steps, outcome, flush_interval_s):
         partial = read_partial(recorder.wal_path)
         episode = read_episode(recorder.finalize(outcome))
         assert partial.steps == (len(steps) if flush_interval_s == 0.0 else 0)
+        quality = episode.metadata.pop("quality")
         assert (episode.steps, episode.outcome, episode.metadata) == (len(steps), outcome, {"k": 1})
+        assert "error" not in quality, "any recorded data is measured"
+        assert quality["completion_time_s"] == pytest.approx(len(steps) / 20)
         for name in ("state", "action"):
             recorded = getattr(episode, name + "s")
             assert bits(recorded) == bits(np.array([getattr(s, name) for s in steps]))

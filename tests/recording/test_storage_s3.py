@@ -56,7 +56,9 @@ def test_scripted_episodes_land_in_a_local_directory(rig, tmp_path):
     config = RecordingConfig(directory=tmp_path / "store")
     storage = config.open_storage()
     assert isinstance(storage, LocalDirectoryStorage)
-    uri = store_episode(_finished(episodes[0], 1), storage, True, {"telemetry": {"rtt_ms": 3}})
+    stored = store_episode(_finished(episodes[0], 1), storage, True, {"telemetry": {"rtt_ms": 3}})
+    assert stored is not None
+    uri = stored.uri
     assert uri.startswith("file://") and uri.endswith("success/lift-0.hdf5")
     assert not list((tmp_path / "incoming").iterdir()), "the recording moved to the store"
     back = storage.get(uri, tmp_path / "back.hdf5")
@@ -64,6 +66,9 @@ def test_scripted_episodes_land_in_a_local_directory(rig, tmp_path):
     assert episode.outcome == "success" and episode.steps == episodes[0].steps
     assert episode.metadata["telemetry"] == {"rtt_ms": 3}
     assert episode.metadata["versions"]["robosuite"] == "1.5.2"
+    assert stored.metrics is not None, "measured as it was stored, and told to the caller"
+    assert stored.metrics.completion_time_s == pytest.approx(episode.steps / 20)
+    assert episode.metadata["quality"] == stored.metrics.model_dump(exclude_none=True)
 
 
 def test_scripted_episodes_land_in_s3_verified_and_read_back(rig, server, tmp_path):
@@ -78,14 +83,18 @@ def test_scripted_episodes_land_in_s3_verified_and_read_back(rig, server, tmp_pa
             store_episode(_finished(episode, n), storage, True, PEOPLE[n % 2])
             for n, episode in enumerate(episodes)
         ]
-        assert uris == [f"s3://{BUCKET}/campaign-1/success/lift-{n}.hdf5" for n in range(2)]
+        assert [u.uri for u in uris if u] == [
+            f"s3://{BUCKET}/campaign-1/success/lift-{n}.hdf5" for n in range(2)
+        ]
         assert storage.pending() == [], "store_episode returned after the store confirmed"
         listed = server.client().list_objects_v2(Bucket=BUCKET, Prefix="campaign-1/")
         assert sorted(o["Key"] for o in listed["Contents"]) == [
             "campaign-1/success/lift-0.hdf5",
             "campaign-1/success/lift-1.hdf5",
         ]
-        back = read_episode(storage.get(uris[1], tmp_path / "back.hdf5"))
+        back = read_episode(
+            storage.get(f"s3://{BUCKET}/campaign-1/success/lift-1.hdf5", tmp_path / "back.hdf5")
+        )
         assert back.metadata["worker_id"] == "w2" and back.outcome == "success"
         assert np.isfinite(back.states).all() and back.steps == episodes[1].steps
     finally:
@@ -121,8 +130,8 @@ def test_server_stopped_mid_run_every_demonstration_arrives_exactly_once(rig, tm
         server.stop()
         with pytest.raises(StorageUnavailableError, match="spooled"):
             store_episode(_finished(episodes[2], 2), storage, True, {}, store_wait_s=1.0)
-        uri = store_episode(_finished(episodes[3], 3), storage, True, {}, saved_when="spooled")
-        assert uri == f"s3://{BUCKET}/run/success/lift-3.hdf5"
+        stored = store_episode(_finished(episodes[3], 3), storage, True, {}, saved_when="spooled")
+        assert stored is not None and stored.uri == f"s3://{BUCKET}/run/success/lift-3.hdf5"
         assert storage.pending() == ["success/lift-2.hdf5", "success/lift-3.hdf5"]
         assert storage.pending_count() == 2, "the backlog the teleop server's /health reports"
         assert storage.failures >= 1 and "cannot reach" in storage.last_error

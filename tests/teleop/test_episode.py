@@ -58,6 +58,17 @@ def test_an_episode_times_out_and_a_disconnect_ends_it(tmp_path):
     assert tracker.end("reset") is None, "nothing runs: nothing to end"
 
 
+def test_each_episode_knows_how_many_ended_otherwise_since_the_last_success(tmp_path):
+    """What the quality metric `resets_before` reads (docs/quality.md)."""
+    tracker = _tracker(tmp_path)
+    befores = []
+    for outcome in ("reset", "timeout", "success", "success", "reset"):
+        tracker.maybe_start(engaged=True)
+        tracker.record(_step(0))
+        befores.append(tracker.end(outcome).resets_before)
+    assert befores == [0, 1, 2, 0, 0]
+
+
 def test_step_labels_read_the_simulation_and_step_record_keeps_them(tmp_path):
     from types import SimpleNamespace
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import os
 import time
 from collections.abc import Mapping
@@ -22,9 +23,11 @@ import numpy as np
 import numpy.typing as npt
 
 from crowdteleop.errors import CrowdteleopError
+from crowdteleop.recording.quality import measure
 from crowdteleop.recording.storage import fsync_directory
 from crowdteleop.vocab import Outcome
 
+log = logging.getLogger(__name__)
 EPISODE_SUFFIX = ".hdf5"
 
 
@@ -231,6 +234,7 @@ def write_episode(
 ) -> Path:
     """Write under a temporary name, fsync, rename: never a half file under the final name."""
     metadata, model_xml, env_args = split_metadata({**partial.metadata, **extra})
+    metadata["quality"] = _quality(partial, metadata)
     model_xml = model_xml if model_xml is not None else partial.model_xml
     env_args = env_args if env_args is not None else partial.env_args
     # HDF5 builds the file in memory; only plain writes touch the disk. A full disk then is
@@ -250,6 +254,25 @@ def write_episode(
     os.replace(tmp, path)
     fsync_directory(path.parent)
     return path
+
+
+def _quality(partial: EpisodeData, metadata: dict[str, Any]) -> dict[str, Any]:
+    """The episode's quality metrics (`recording/quality.py`); a failure to measure is logged
+    and written down in their place, never a reason to lose the recording."""
+    try:
+        return measure(partial, metadata).model_dump(mode="json", exclude_none=True)
+    except Exception as error:  # any bug in a metric must not cost the episode
+        log.exception("measuring episode %s failed", partial.episode_id)
+        return {"error": f"{type(error).__name__}: {error}"[:500]}
+
+
+def read_metadata(path: Path) -> dict[str, Any]:
+    """An episode file's metadata (its ids, telemetry, `quality`) without its arrays."""
+    try:
+        with h5py.File(path, "r") as file:
+            return dict(json.loads(file.attrs["metadata"]))
+    except (OSError, KeyError, ValueError) as error:
+        raise CorruptEpisodeError(f"{path} has no readable episode metadata: {error}") from error
 
 
 def _write_hdf5(

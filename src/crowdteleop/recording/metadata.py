@@ -10,6 +10,7 @@ controller it names are typed by ``crowdteleop.provenance``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Annotated, Any, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
@@ -39,6 +40,47 @@ class RegionChoice(BaseModel):
     )
 
 
+class ArmJoints(BaseModel):
+    """Where the arm's joint positions sit in each recorded state, and their limits: what the
+    quality metrics (`recording/quality.py`) read postures from without the simulator."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    state_index: list[int] = Field(description="index of each joint's position in a state")
+    limits_rad: list[tuple[float, float]] = Field(description="each joint's (low, high)")
+
+    @classmethod
+    def of(cls, state_index: Sequence[int], limits_rad: Any) -> ArmJoints:
+        """From a simulation's `KinematicModel` (`state_index`, `joint_position_limits`)."""
+        return cls(
+            state_index=[int(i) for i in state_index],
+            limits_rad=[(float(low), float(high)) for low, high in limits_rad],
+        )
+
+
+class ArmKinematics(Protocol):
+    """A simulation's `KinematicModel`, as far as `arm_joints_of` reads it."""
+
+    @property
+    def state_index(self) -> tuple[int, ...]: ...
+
+    @property
+    def joint_position_limits(self) -> Any: ...
+
+
+class KnowsKinematics(Protocol):
+    def kinematics(self) -> ArmKinematics: ...
+
+
+def arm_joints_of(sim: KnowsKinematics) -> ArmJoints | None:
+    """The simulation's arm joints, as the episode metadata records them (None: a backend
+    that does not say where they are in its state)."""
+    kinematics = sim.kinematics()
+    if not kinematics.state_index:
+        return None
+    return ArmJoints.of(kinematics.state_index, kinematics.joint_position_limits)
+
+
 class EpisodeMetadata(BaseModel):
     model_config = ConfigDict(extra="allow")
 
@@ -62,6 +104,9 @@ class EpisodeMetadata(BaseModel):
         None,
         description="the simulation's controller state (robosuite's ramped finger command) "
         "before the first step: with the states and actions it restores every step exactly",
+    )
+    arm_joints: ArmJoints | None = Field(
+        None, description="the arm's joints in the states (recordings since issue 29)"
     )
 
     def to_record(self) -> dict[str, Any]:

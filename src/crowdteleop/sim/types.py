@@ -91,6 +91,8 @@ class KinematicModel:
     end_effector_site: str
     joint_position_limits: npt.NDArray[np.float64]  # (n, 2) radians
     joint_velocity_limits: npt.NDArray[np.float64]  # (n,) rad/s, symmetric
+    # where each arm joint's position sits in `Simulation.get_state()` ([time, qpos, qvel])
+    state_index: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -66,7 +66,7 @@ class EpisodeArchive:
         telemetry: dict[str, Any],
     ) -> None:
         try:
-            uri = await session.store(finished, {"telemetry": telemetry})
+            stored = await session.store(finished, {"telemetry": telemetry})
         except Exception as error:
             log.exception("storing episode %s failed", finished.episode_id)
             self._telemetry.errors["storage"] += 1
@@ -80,8 +80,9 @@ class EpisodeArchive:
                 )
             )
             return
-        if uri is None:
+        if stored is None:
             return
+        uri = stored.uri
         self.stored.append(uri)
         self._peers.broadcast(
             EpisodeSaved(episode=finished.number, outcome=finished.outcome, uri=uri)
@@ -99,6 +100,7 @@ class EpisodeArchive:
             uri=uri,
             telemetry=telemetry,
             device=finished.device,
+            metrics=stored.metrics,
         )
         self.reports.put(PendingReport(config.report_url, config.report_token, report))
 

@@ -11,10 +11,17 @@ from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
+from pydantic import ValidationError
 
 from crowdteleop.control.teleoperator import TeleopStep
-from crowdteleop.recording.episode_file import CommandRecord, StepLabels, StepRecord
+from crowdteleop.recording.episode_file import (
+    CommandRecord,
+    StepLabels,
+    StepRecord,
+    read_metadata,
+)
 from crowdteleop.recording.metadata import EpisodeMetadata
+from crowdteleop.recording.quality import EpisodeMetrics
 from crowdteleop.recording.storage import EpisodeStorage
 from crowdteleop.recording.stores import SavedWhen
 from crowdteleop.recording.versions import runtime_versions
@@ -34,6 +41,7 @@ class FinishedEpisode:
     steps: int
     recorder: EpisodeRecorder | None
     device: DeviceKind | None = None  # the device driving when the episode started
+    resets_before: int = 0  # episodes reset or failed in the session since its last success
 
 
 @dataclass
@@ -55,6 +63,7 @@ class EpisodeTracker:
     number: int = 0
     steps: int = 0
     successes: int = 0
+    since_success: int = 0  # episodes that ended otherwise since the last success
     _held: int = 0
     _recorder: EpisodeRecorder | None = field(default=None, repr=False)
     _episode_id: str = ""
@@ -115,11 +124,20 @@ class EpisodeTracker:
         the control loop. The session then waits for the next engaged command."""
         finished = None
         if self.state == "running":
+            finished = FinishedEpisode(
+                self.number,
+                self._episode_id,
+                outcome,
+                self.steps,
+                self._recorder,
+                self._device,
+                resets_before=self.since_success,
+            )
             if outcome == "success":
                 self.successes += 1
-            finished = FinishedEpisode(
-                self.number, self._episode_id, outcome, self.steps, self._recorder, self._device
-            )
+                self.since_success = 0
+            else:
+                self.since_success += 1
         self._recorder = None
         self.state = "stopped" if stop else "ready"
         return finished
@@ -151,6 +169,12 @@ def step_record(
     )
 
 
+@dataclass(frozen=True)
+class StoredEpisode:
+    uri: str
+    metrics: EpisodeMetrics | None  # None: the recording could not be measured
+
+
 def store_episode(
     finished: FinishedEpisode,
     storage: EpisodeStorage,
@@ -158,9 +182,10 @@ def store_episode(
     extra_metadata: dict[str, Any],
     saved_when: SavedWhen = "stored",
     store_wait_s: float = 30.0,
-) -> str | None:
-    """Finalize the recording and hand it to storage; returns its URI once it is durable
-    (None if discarded). The server tells the worker "saved" only after this returns.
+) -> StoredEpisode | None:
+    """Finalize the recording (measuring its quality) and hand it to storage; returns its URI
+    and metrics once it is durable (None if discarded). The server tells the worker "saved"
+    only after this returns.
 
     Durable means: a local store fsync'd the file; an S3 store behind a spool confirmed the
     upload (size, MD5 and SHA-256 checked) within ``store_wait_s``, or, with
@@ -172,11 +197,16 @@ def store_episode(
     """
     if finished.recorder is None:
         return None
-    extra = {"versions": runtime_versions(), **extra_metadata}
+    extra = {
+        "versions": runtime_versions(),
+        "resets_before": finished.resets_before,
+        **extra_metadata,
+    }
     path = finished.recorder.finalize(finished.outcome, extra)
     if finished.outcome != "success" and not keep_failed:
         path.unlink(missing_ok=True)
         return None
+    metrics = _metrics(path)
     folder = "success" if finished.outcome == "success" else "other"
     key = f"{folder}/{path.name}"
     uri = storage.put(path, key)
@@ -190,4 +220,14 @@ def store_episode(
         finished.steps,
         uri,
     )
-    return uri
+    return StoredEpisode(uri, metrics)
+
+
+def _metrics(path: Path) -> EpisodeMetrics | None:
+    """What the episode file says of its quality (written with it by `write_episode`)."""
+    quality = read_metadata(path).get("quality")
+    try:
+        return EpisodeMetrics.model_validate(quality)
+    except ValidationError:
+        log.warning("episode file %s carries no quality metrics: %s", path.name, quality)
+        return None

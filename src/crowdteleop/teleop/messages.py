@@ -16,6 +16,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from crowdteleop.recording.metadata import RegionChoice
+from crowdteleop.recording.quality import EpisodeMetrics
 from crowdteleop.teleop.protocol import PeerRole
 from crowdteleop.vocab import DeviceKind, Outcome
 
@@ -150,6 +151,9 @@ class EpisodeReport(BaseModel):
     )
     device: DeviceKind | None = Field(
         None, description="the device that drove the episode, when the server knows it"
+    )
+    metrics: EpisodeMetrics | None = Field(
+        None, description="its quality metrics, measured as it was stored (none: unmeasured)"
     )
 
     @field_validator("telemetry")

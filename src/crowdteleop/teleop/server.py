@@ -293,6 +293,8 @@ class TeleopServer:
 
     async def _one_tick(self) -> None:
         result = await self.session.tick(want_privileged=bool(self.peers.admins()))
+        if self.session.tracker.recording:
+            self.telemetry.episode_running(self.session.tracker.number)
         failure = self.session.recording_failure
         if failure != self._told_recording_failure:
             self._told_recording_failure = failure

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import statistics
 import time
 from collections import Counter, deque
@@ -18,6 +19,13 @@ def percentile(values: list[float], q: float) -> float:
     ordered = sorted(values)
     index = min(len(ordered) - 1, max(0, round(q / 100 * (len(ordered) - 1))))
     return ordered[index]
+
+
+def mean_change(values: list[float]) -> float:
+    """Mean absolute change between successive samples: RFC 3550's idea of jitter."""
+    if len(values) < 2:
+        return 0.0
+    return statistics.fmean(abs(b - a) for a, b in itertools.pairwise(values))
 
 
 @dataclass
@@ -37,6 +45,12 @@ class SessionTelemetry:
     fps: float = 0.0
     loss_fraction: float = 0.0
     rtcp_rtt_ms: float = 0.0
+    _episode_mark: tuple[int, int] = (0, 0)  # (episode number, video stalls when it began)
+
+    def episode_running(self, number: int) -> None:
+        """Called each tick an episode records: its video stalls count from its first."""
+        if number != self._episode_mark[0]:
+            self._episode_mark = (number, self.video_stalls)
 
     def frame_published(self) -> None:
         self.frames_published += 1
@@ -79,10 +93,12 @@ class SessionTelemetry:
             "late": loop.late,
             "frames_sent": self.frames_published,
             "video_stalls": self.video_stalls,
+            "episode_video_stalls": self.video_stalls - self._episode_mark[1],  # the last's
             "fps": round(self.fps, 2),
             "bitrate_kbps": round(self.bitrate_kbps, 1),
             "rtt_ms": round(statistics.median(rtt), 2) if rtt else 0.0,
             "rtt_min_ms": round(min(rtt), 2) if rtt else 0.0,  # the link's own delay
+            "rtt_jitter_ms": round(mean_change(rtt), 2),
             "rtcp_rtt_ms": round(self.rtcp_rtt_ms, 2),
             "loss_fraction": round(self.loss_fraction, 4),
             "latency_p50_ms": round(percentile(latency, 50), 1),

@@ -7,6 +7,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from crowdteleop.recording.metadata import RegionName, RoundTripMs
+from crowdteleop.recording.quality import EpisodeMetrics, QualityFlag
 from crowdteleop.teleop.messages import IceServer, IceTransportPolicy
 from crowdteleop.vocab import Outcome, WorkerDevice
 
@@ -199,6 +200,15 @@ class EpisodeView(BaseModel):
     interface: str | None
     task: str
     created_at: float
+    metrics: EpisodeMetrics | None = Field(
+        None, description="its quality metrics (none: reported unmeasured)"
+    )
+    score: float | None = Field(
+        None,
+        description="0-100 against its campaign's successful episodes of the task, when "
+        "it was reported (none: unmeasured)",
+    )
+    flags: list[QualityFlag] | None = Field(None, description="why it stands out, if it does")
 
 
 class TeleopAccess(BaseModel):

@@ -7,7 +7,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 from sqlalchemy.sql import ColumnElement
 
-from crowdteleop.coord.db.tables import Base, Episode, Event, Session, Worker
+from crowdteleop.coord.db.tables import Base, Episode, EpisodeMetric, Event, Session, Worker
 
 
 class EpisodeStore:
@@ -17,12 +17,14 @@ class EpisodeStore:
         self.transactions = transactions
 
     async def add_episode(self, episode: Episode) -> tuple[bool, int]:
-        """(new?, demos done). Idempotent by episode id: a retried report counts once."""
+        """(new?, demos done). Idempotent by episode id: a retried report counts once. Its
+        numeric quality metrics go into `episode_metrics` in the same transaction."""
         try:
             async with self.transactions.begin() as db:
                 if await db.get(Episode, episode.episode_id) is not None:
                     raise _DuplicateError
                 db.add(episode)
+                db.add_all(metric_rows(episode))
                 if episode.outcome == "success":
                     await db.execute(
                         update(Session)
@@ -46,6 +48,34 @@ class EpisodeStore:
                 select(Session.demos_done).where(Session.id == episode.session_id)
             )
         return new, done or 0
+
+    async def metric_values(
+        self, name: str, task: str | None = None, campaign: str | None = None
+    ) -> list[float]:
+        """The metric `name` over the successful episodes (of `task`, of `campaign`'s
+        sessions), ascending: the distribution a score is a percentile of."""
+        statement = (
+            select(EpisodeMetric.value)
+            .join(Episode)
+            .where(EpisodeMetric.name == name, Episode.outcome == "success")
+        )
+        if task is not None:
+            statement = statement.where(Episode.task == task)
+        if campaign is not None:
+            statement = statement.join(Session).where(Session.campaign == campaign)
+        async with self.transactions() as db:
+            return list(await db.scalars(statement.order_by(EpisodeMetric.value)))
+
+    async def judge(
+        self, episode_id: str, score: float | None, flags: list[dict[str, str]]
+    ) -> None:
+        """Keep the score and flags the coordinator gave the episode."""
+        async with self.transactions.begin() as db:
+            await db.execute(
+                update(Episode)
+                .where(Episode.episode_id == episode_id)
+                .values(score=score, flags=flags)
+            )
 
     async def episodes_since(self, since: float) -> list[Episode]:
         async with self.transactions() as db:
@@ -71,6 +101,16 @@ class EpisodeStore:
                 "episodes": await count(Episode),
                 "successes": await count(Episode, Episode.outcome == "success"),
             }
+
+
+def metric_rows(episode: Episode) -> list[EpisodeMetric]:
+    """The episode's numeric metrics as rows (counts and booleans are numbers too; the
+    stage a pause was in is not)."""
+    return [
+        EpisodeMetric(episode_id=episode.episode_id, name=name, value=float(value))
+        for name, value in (episode.metrics or {}).items()
+        if isinstance(value, int | float)
+    ]
 
 
 class _DuplicateError(Exception):

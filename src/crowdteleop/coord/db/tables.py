@@ -111,6 +111,28 @@ class Episode(Base):
     task: Mapped[str] = mapped_column(String(64))
     telemetry: Mapped[dict[str, Any]] = mapped_column(JSON)
     created_at: Mapped[float] = mapped_column(Float, index=True)
+    # its quality metrics as the teleop server measured them (recording/quality.py); null
+    # for an episode reported unmeasured. Each number is also a row of `episode_metrics`.
+    metrics: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
+    # 0-100 against the campaign's successful episodes of the task when it was reported, and
+    # the metrics past the campaign's thresholds ([{metric, reason}]).
+    score: Mapped[float | None] = mapped_column(Float, index=True, default=None)
+    flags: Mapped[list[dict[str, str]] | None] = mapped_column(JSON, default=None)
+
+
+class EpisodeMetric(Base):
+    """One quality metric of one episode: indexed by (name, value), so a campaign's
+    distribution of a metric per task, and the episodes past a threshold, are one range
+    scan, whichever metrics later versions add."""
+
+    __tablename__ = "episode_metrics"
+    __table_args__ = (Index("ix_episode_metrics_name_value", "name", "value"),)
+
+    episode_id: Mapped[str] = mapped_column(
+        ForeignKey("episodes.episode_id", ondelete="CASCADE"), primary_key=True
+    )
+    name: Mapped[str] = mapped_column(String(48), primary_key=True)
+    value: Mapped[float] = mapped_column(Float)
 
 
 class PairingCode(Base):

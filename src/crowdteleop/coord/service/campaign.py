@@ -11,6 +11,7 @@ import yaml
 from pydantic import AnyHttpUrl, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from crowdteleop.recording.metadata import RegionName
+from crowdteleop.recording.quality import QualityThresholds
 from crowdteleop.tasks import ROBOSUITE_ARMS, get_task, task_names
 from crowdteleop.vocab import WORKER_DEVICES, ControllerName, WorkerDevice
 
@@ -63,6 +64,10 @@ class CampaignConfig(BaseModel):
         "ball, nothing recorded, skippable (teleop/practice.py); 0: none",
     )
     time_limit_s: float = Field(1800.0, gt=0, le=24 * 3600, description="per session")
+    quality: QualityThresholds = Field(
+        default_factory=QualityThresholds,
+        description="when a demonstration is flagged, and why (docs/quality.md)",
+    )
     capacity: int | None = Field(
         None, ge=1, description="unused here: the server-wide capacity applies (CoordConfig)"
     )

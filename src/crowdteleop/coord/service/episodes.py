@@ -12,6 +12,13 @@ from crowdteleop.coord.guard.security import new_completion_code
 from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.coordinator import Coordinator
 from crowdteleop.coord.service.metrics import CoordMetrics
+from crowdteleop.recording.quality import (
+    SCORED_METRICS,
+    EpisodeMetrics,
+    QualityThresholds,
+    quality_flags,
+    quality_score,
+)
 from crowdteleop.teleop.messages import EpisodeReport
 
 
@@ -52,10 +59,15 @@ class Episodes:
                 task=session.task,
                 telemetry=report.telemetry,
                 created_at=time.time(),
+                metrics=report.metrics.model_dump(mode="json", exclude_none=True)
+                if report.metrics is not None
+                else None,
             )
         )
         if new:
             self._metrics.episodes.labels(outcome=report.outcome).inc()
+            if report.metrics is not None:
+                await self._judge(session, report.episode_id, report.metrics)
         completed = False
         if new and report.outcome == "success" and done >= session.demos_required:
             campaign = self._config.campaign(session.campaign)
@@ -68,12 +80,28 @@ class Episodes:
             )
         return Recorded(new, done, completed)
 
+    async def _judge(self, session: Session, episode_id: str, metrics: EpisodeMetrics) -> None:
+        """Its score against the campaign's successful episodes of its task so far (itself
+        included), and the flags its campaign's thresholds raise (docs/quality.md)."""
+        campaign = self._config.campaign(session.campaign)
+        thresholds = campaign.quality if campaign is not None else QualityThresholds()
+        distributions = {
+            name: await self._episodes.metric_values(name, session.task, session.campaign)
+            for name in SCORED_METRICS
+        }
+        flags = [flag.model_dump() for flag in quality_flags(metrics, thresholds)]
+        await self._episodes.judge(episode_id, quality_score(metrics, distributions), flags)
+
     async def of_session(self, session_id: str) -> list[Episode]:
         """A session's episodes, oldest first."""
         return await self._episodes.episodes(session_id)
 
     async def all(self) -> list[Episode]:
         return await self._episodes.episodes()
+
+    async def metric_values(self, name: str, task: str | None = None) -> list[float]:
+        """A metric's values over the recorded episodes (of `task`), ascending."""
+        return await self._episodes.metric_values(name, task)
 
     async def since(self, since: float) -> list[Episode]:
         return await self._episodes.episodes_since(since)

@@ -264,6 +264,7 @@ class MujocoSimulation:
             end_effector_site="ee_site",
             joint_position_limits=self._model.jnt_range[self._arm_joint_ids].copy(),
             joint_velocity_limits=np.full(len(scene.ARM_JOINTS), self.config.max_joint_speed),
+            state_index=tuple(1 + int(a) for a in self._model.jnt_qposadr[self._arm_joint_ids]),
         )
 
     def mjcf_xml(self) -> str:

@@ -255,6 +255,7 @@ class RobosuiteSimulation:
             end_effector_site=self._ee_site,
             joint_position_limits=self._model.jnt_range[joint_ids].copy(),
             joint_velocity_limits=np.full(len(joint_ids), self.config.max_joint_speed),
+            state_index=tuple(1 + int(a) for a in self._model.jnt_qposadr[joint_ids]),
         )
 
     def mjcf_xml(self) -> str:
