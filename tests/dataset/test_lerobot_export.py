@@ -14,6 +14,7 @@ import subprocess
 from pathlib import Path
 
 import av
+import h5py
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
@@ -76,7 +77,7 @@ def channel_means(video: Path) -> list[list[float]]:
     return [(frame.reshape(-1, 3).mean(axis=0) / 255).tolist() for frame in frames]
 
 
-def test_lerobot_loads_the_export(exported, lerobot_python, tmp_path):
+def test_lerobot_loads_the_export(dataset, exported, lerobot_python, tmp_path):
     read = load_with_lerobot(lerobot_python, exported, tmp_path)
     info = json.loads((exported / "meta/info.json").read_text())
     assert read["len"] == info["total_frames"] == sum(e["length"] for e in read["episodes"])
@@ -97,6 +98,11 @@ def test_lerobot_loads_the_export(exported, lerobot_python, tmp_path):
         assert {f["episode_index"] for f in frames} == {e}
         assert [f["frame_index"] for f in frames] == list(range(episode["length"]))
         start, video_start = episode["dataset_to_index"], video_start + episode["length"] / 20
+    # each episode's quality score (docs/quality.md), as the dataset gave it its demo
+    with h5py.File(dataset, "r") as file:
+        scores = [file[f"data/demo_{e + 1}"].attrs["quality_score"] for e in range(N_DEMOS)]
+    assert [e["quality_score"] for e in read["episodes"]] == pytest.approx(scores)
+    assert all(0 <= score <= 100 for score in scores)
     # each frame's subtask (the stage the worker was in), named in meta/subtasks.parquet
     subtasks = pq.read_table(exported / "meta/subtasks.parquet").to_pydict()
     named = dict(zip(subtasks["subtask_index"], subtasks["subtask"], strict=True))

@@ -6,7 +6,8 @@ Layout (robosuite's demo.hdf5 as extended by robomimic; docs/dataset.md): ``data
 ``--obs``), ``actions_abs`` (absolute end-effector targets), ``controller_states`` and attrs
 ``model_file``, ``num_samples``, plus our metadata as attributes; ``mask/<filter key>``
 lists of demo names: ``train`` / ``valid`` (90/10, seeded), ``interface_<x>``,
-``worker_<x>``, ``network_<x>``, ``region_<x>``, ``fastest_<N>``, ``replay_ok``.
+``worker_<x>``, ``network_<x>``, ``region_<x>``, ``fastest_<N>``, ``replay_ok``,
+``quality_top_50`` / ``quality_bottom_50`` / ``quality_unflagged`` (dataset/quality.py).
 
 Every input is read and checked before anything is written, and the output appears under its
 name only when whole (temporary file, fsync, rename): a bad input leaves an existing dataset
@@ -42,6 +43,7 @@ from crowdteleop.dataset.observations import (
     parse_obs,
     write_demo_pass,
 )
+from crowdteleop.dataset.quality import DemoQuality, dataset_quality, quality_masks
 from crowdteleop.dataset.summary import summarize
 from crowdteleop.provenance.controllers import ArmController
 from crowdteleop.provenance.env_args import EnvArgs
@@ -243,14 +245,20 @@ def _write(
         data.attrs["actions_abs_controller_configs"] = json.dumps(
             env_args.controller.absolute().to_robosuite()
         )
+    qualities = dataset_quality([episode for _, episode in chosen])
     checker = ReplayChecker()
     try:
         _write_demos(data, chosen, report, checker, work, options.obs, env_args.arm)
     finally:
         checker.close()
+    for demo, quality in zip(report.demos, qualities, strict=True):
+        data[demo.name].attrs.update(quality_attrs(quality))
     _write_masks(
         file, report.demos, report.flagged, options.fastest, options.valid_fraction, options.seed
     )
+    names = [demo.name for demo in report.demos]
+    for key, members in quality_masks(names, qualities).items():
+        file["mask"].create_dataset(key, data=np.array(members, dtype="S"))
 
 
 def _write_demos(
@@ -312,6 +320,16 @@ def _write_demos(
         # recorded at collection where the recording has them, else computed from its states
         labels = episode.labels if episode.labels is not None else stack_labels(computed.labels)
         write_datagen_info(group, labels, replayable.actions, targets_world)
+
+
+def quality_attrs(quality: DemoQuality) -> dict[str, Any]:
+    """A demo's quality as attributes: `quality` (the metrics, JSON), `quality_score` (-1:
+    none), `quality_flags` (JSON list of {metric, reason})."""
+    return {
+        "quality": quality.metrics.model_dump_json(exclude_none=True),
+        "quality_score": -1.0 if quality.score is None else quality.score,
+        "quality_flags": json.dumps([flag.model_dump() for flag in quality.flags]),
+    }
 
 
 def _write_masks(

@@ -7,7 +7,8 @@ lerobot 0.4's ``LeRobotDataset`` writes one and its ``LeRobotDatasetMetadata`` r
   over all frames (LeRobot's ``aggregate_stats`` averages episodes' quantiles); images per
   channel in [0, 1], shaped (3, 1, 1), counted in frames.
 - ``meta/episodes/chunk-*/file-*.parquet``: a row per episode (``tasks``, ``length``, file
-  indices, ``dataset_from_index``, ``videos/<key>/from_timestamp``, ``stats/<feature>/<stat>``).
+  indices, ``dataset_from_index``, ``videos/<key>/from_timestamp``, ``stats/<feature>/<stat>``,
+  ``quality_score``: the demo's score in the source dataset, docs/quality.md, -1 if none).
 - ``data/`` and ``videos/<key>/``: whole episodes back to back, the next file where the next
   episode would pass the size limit; AV1 as LeRobot encodes (keyframe every 2 frames, crf 30).
 
@@ -158,7 +159,8 @@ def export_lerobot(
                     group = file["data"][name]
                     rewards, dones = (group[key][()] for key in ("rewards", "dones"))
                     subtasks = subtask_names(group)
-                writer.add_episode(demo, obs, rewards, dones, subtasks)
+                    score = float(group.attrs.get("quality_score", -1.0))
+                writer.add_episode(demo, obs, rewards, dones, subtasks, score)
         writer.finish("-".join(robots or ["Sawyer"]).lower())
         if output.exists():
             output.rmdir()  # empty, checked above
@@ -202,6 +204,7 @@ class _Writer:
         rewards: npt.NDArray[Any],
         dones: npt.NDArray[Any],
         subtasks: list[str] | None = None,
+        quality_score: float = -1.0,
     ) -> None:
         keys = state_keys(list(obs.low_dim))
         widths = {key: obs.low_dim[key].shape[1] for key in keys}
@@ -231,6 +234,7 @@ class _Writer:
         frame = {key: value.astype(FEATURE_DTYPES[key]) for key, value in frame.items()}
         data_file = self.data.append(_frame_table(frame))
         entry: dict[str, Any] = {"episode_index": episode, "tasks": [task], "length": n}
+        entry["quality_score"] = quality_score  # docs/quality.md; -1: not scored
         entry |= _indices(data_file, "data/")
         entry |= {"dataset_from_index": start, "dataset_to_index": start + n}
         stats: dict[str, dict[str, Any]] = {key: _stats(a) for key, a in frame.items()}
