@@ -170,13 +170,17 @@ def test_reported_metrics_are_scored_against_the_campaign_and_flagged_with_reaso
         "setbacks": 1,
         "first_setback": "grasped -> reach at 9.0 s",
     }
-    for metrics in (smooth, idle):
-        assert post(metrics=json.dumps(metrics)).status_code == 200
+    acks = [post(metrics=json.dumps(metrics)).json() for metrics in (smooth, idle)]
+    assert acks[0]["feedback"]["score"] == 50.0 and acks[0]["feedback"]["time_s"] == 3.0
+    assert acks[1]["feedback"]["median_time_s"] == 11.5, "the study's middle, itself included"
+    assert acks[1]["feedback"]["tip"].startswith("Keep the gripper closed"), acks[1]
+    unmeasured = post().json()
+    assert unmeasured["feedback"] is None, "nothing measured, nothing to say"
     assert post(metrics='{"completion_time_s": "slow"}').status_code == 422
     assert post(metrics='{"completion_time_s": NaN}').status_code == 422, "a metric it needs"
     path = f"/api/admin/sessions/{post.session_id}/episodes"
     episodes = client.get(path, headers=_admin()).json()
-    first, second = episodes
+    first, second, _unmeasured = episodes
     assert first["score"] == 50.0 and first["flags"] == []
     assert second["score"] < first["score"]
     assert second["metrics"]["longest_pause_stage"] == "reach"

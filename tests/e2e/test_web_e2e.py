@@ -213,6 +213,13 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path, screenshots
                     page, "document.getElementById('completion-code')?.textContent", 120
                 )
                 results["completion_code"] = code_text
+                # how the demonstration compares with the study's, and a tip (docs/quality.md)
+                results["feedback"] = await wait_js(
+                    page,
+                    "!document.getElementById('feedback').hidden"
+                    " && document.getElementById('feedback').innerText",
+                    30,
+                )
                 results["phone_haptics"] = await phone.evaluate("window.crowdteleop.haptics")
                 # every message each page sent or heard was checked against the served schema
                 results["schema_stats"] = [
@@ -277,6 +284,9 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path, screenshots
     assert results["queue_position"] == 1
     assert "worker" in results["admin_sessions"] and "ready" in results["admin_sessions"]
     assert len(results["completion_code"]) >= 6
+    feedback = results["feedback"]
+    assert "Your last demonstration" in feedback and "(study:" in feedback, feedback
+    assert "smoother than" in feedback and feedback.strip().splitlines()[-1], feedback
     assert results["phone_haptics"] > 0, "the phone buzzed when the gripper touched the cube"
     for stats in results["schema_stats"]:
         assert stats == {"refusedOutgoing": 0, "ignoredIncoming": 0}, "every message fit"

@@ -14,7 +14,8 @@ from contextlib import asynccontextmanager
 
 from aiohttp import web
 
-from crowdteleop.teleop.messages import EpisodeReport
+from crowdteleop.teleop.messages import EpisodeAck, EpisodeReport
+from crowdteleop.teleop.protocol import EpisodeFeedback
 from crowdteleop.teleop.report import (
     MAX_BACKOFF_S,
     REQUEST_TIMEOUT_S,
@@ -39,13 +40,17 @@ def report(number: int) -> EpisodeReport:
 
 
 @asynccontextmanager
-async def coordinator(port: int, status: int = 200) -> AsyncIterator[list[str]]:
-    """Answers every report with `status`; yields the episode ids it heard, in order."""
+async def coordinator(
+    port: int, status: int = 200, answer: dict | None = None
+) -> AsyncIterator[list[str]]:
+    """Answers every report with `status` and `answer` (its episode id filled in); yields the
+    episode ids it heard, in order."""
     heard: list[str] = []
 
     async def episodes(request: web.Request) -> web.Response:
         heard.append((await request.json())["episode_id"])
-        return web.json_response({}, status=status)
+        body = {**answer, "episode_id": heard[-1]} if answer is not None else {}
+        return web.json_response(body, status=status)
 
     app = web.Application()
     app.add_routes([web.post("/internal/episodes", episodes)])
@@ -91,6 +96,37 @@ def test_reports_wait_for_a_coordinator_that_is_down_and_arrive_once_in_order():
             await outbox.close()
 
     asyncio.run(scenario())
+
+
+def test_each_answer_reaches_on_ack_with_the_workers_feedback():
+    feedback = EpisodeFeedback(episode=1, time_s=6.5, median_time_s=8.0, tip="Well done.")
+    answer = {
+        "duplicate": False,
+        "demos_done": 1,
+        "demos_required": 3,
+        "completed": False,
+        "feedback": feedback.model_dump(mode="json"),
+    }
+
+    async def scenario() -> list[EpisodeAck]:
+        port = free_port()
+        url = f"http://127.0.0.1:{port}/internal/episodes"
+        acks: list[EpisodeAck] = []
+        outbox = ReportOutbox(on_unreachable=lambda _url: None, on_ack=acks.append)
+        async with coordinator(port, answer=answer):
+            for number in (1, 2):
+                outbox.put(PendingReport(url, "token", report(number)))
+            await until(lambda: outbox.pending == 0)
+        async with coordinator(port):  # an answer that is no EpisodeAck: still delivered
+            outbox.put(PendingReport(url, "token", report(3)))
+            await until(lambda: outbox.pending == 0)
+        await outbox.close()
+        assert outbox.delivered == 3
+        return acks
+
+    acks = asyncio.run(scenario())
+    assert [ack.episode_id for ack in acks] == ["ep1", "ep2"]
+    assert acks[0].feedback == feedback
 
 
 def test_a_refused_report_is_dropped_and_the_next_one_goes(caplog):

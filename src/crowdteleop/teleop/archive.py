@@ -14,7 +14,7 @@ from typing import Any
 from crowdteleop.recording.storage import disk_is_full
 from crowdteleop.teleop.config import TeleopConfig
 from crowdteleop.teleop.episode import FinishedEpisode
-from crowdteleop.teleop.messages import EpisodeReport
+from crowdteleop.teleop.messages import EpisodeAck, EpisodeReport
 from crowdteleop.teleop.peering import PeerSet
 from crowdteleop.teleop.protocol import EpisodeEnded, EpisodeSaved, ErrorEvent
 from crowdteleop.teleop.report import PendingReport, ReportOutbox
@@ -32,7 +32,14 @@ class EpisodeArchive:
         self._telemetry = telemetry
         self._tasks: set[asyncio.Task[None]] = set()
         self.stored: list[str] = []
-        self.reports = ReportOutbox(on_unreachable=self._reports_unreachable)
+        self.reports = ReportOutbox(
+            on_unreachable=self._reports_unreachable, on_ack=self._acknowledged
+        )
+
+    def _acknowledged(self, ack: EpisodeAck) -> None:
+        """The coordinator counted an episode: the worker hears how it compares, if it said."""
+        if ack.feedback is not None:
+            self._peers.broadcast(ack.feedback)
 
     def _reports_unreachable(self, url: str) -> None:
         self._telemetry.errors["report_unreachable"] += 1

@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from crowdteleop.recording.metadata import RegionChoice
 from crowdteleop.recording.quality import EpisodeMetrics
-from crowdteleop.teleop.protocol import PeerRole
+from crowdteleop.teleop.protocol import EpisodeFeedback, PeerRole
 from crowdteleop.vocab import DeviceKind, Outcome
 
 MAX_OFFER_BYTES = 64 * 1024
@@ -172,6 +172,20 @@ def _check_json(value: Any, depth: int) -> None:
             raise ValueError(f"nested more than {MAX_TELEMETRY_DEPTH} deep")
         for item in value.values() if isinstance(value, dict) else value:
             _check_json(item, depth - 1)
+
+
+class EpisodeAck(BaseModel):
+    """The coordinator's answer to an `EpisodeReport`: counted (or a retry), the session's
+    count, and the worker's feedback when the episode was measured."""
+
+    model_config = ConfigDict(extra="ignore")  # newer coordinators may say more
+
+    episode_id: str
+    duplicate: bool
+    demos_done: int
+    demos_required: int
+    completed: bool
+    feedback: EpisodeFeedback | None = None
 
 
 class TeleopHealth(BaseModel):

@@ -266,6 +266,24 @@ class EpisodeSaved(_Message):
     uri: str
 
 
+class EpisodeFeedback(_Message):
+    """After a demonstration is counted, how it compares with the study's (the coordinator's
+    judgement, docs/quality.md): its time, how much of it was idle and how smooth it was,
+    each beside the study's median, and one concrete tip."""
+
+    type: Literal["feedback"] = "feedback"
+    episode: int
+    score: float | None = Field(None, description="0-100 among the study's demonstrations")
+    time_s: float
+    median_time_s: float | None = None
+    idle_percent: float | None = None
+    median_idle_percent: float | None = None
+    smoother_than_percent: float | None = Field(
+        None, description="the share of the study's demonstrations this one is smoother than"
+    )
+    tip: str = Field(max_length=300)
+
+
 class PingReply(_Message):
     """The server's answer to a client `ping`, echoing its id and time."""
 
@@ -311,6 +329,7 @@ ServerMessage = Annotated[
     | FrameTag
     | EpisodeEnded
     | EpisodeSaved
+    | EpisodeFeedback
     | PingReply
     | ServerPing
     | Telemetry

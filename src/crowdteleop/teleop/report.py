@@ -5,7 +5,8 @@ restarting, or out of reach for minutes, costs the worker no demonstration. Each
 idempotent on the coordinator's side (keyed by episode id), so a retry after a lost answer
 never counts an episode twice. While the coordinator cannot be reached, the server says so:
 in its log, to the worker's page (through `on_unreachable`) and in `/health`
-(`reports_pending`, summed into the coordinator's `/metrics` by its probes).
+(`reports_pending`, summed into the coordinator's `/metrics` by its probes). Each answer
+(`EpisodeAck`) goes to `on_ack`: the worker's feedback rides on it.
 """
 
 from __future__ import annotations
@@ -19,8 +20,9 @@ from dataclasses import dataclass
 from typing import Literal
 
 import aiohttp
+from pydantic import ValidationError
 
-from crowdteleop.teleop.messages import EpisodeReport
+from crowdteleop.teleop.messages import EpisodeAck, EpisodeReport
 
 log = logging.getLogger(__name__)
 
@@ -41,25 +43,37 @@ class PendingReport:
     report: EpisodeReport
 
 
-async def post_report(http: aiohttp.ClientSession, pending: PendingReport) -> Delivery:
-    """One attempt: delivered (2xx), refused (3xx, 4xx: retrying will not help) or
-    unreachable (no answer, or the coordinator's own trouble, 5xx)."""
+async def post_report(
+    http: aiohttp.ClientSession, pending: PendingReport
+) -> tuple[Delivery, EpisodeAck | None]:
+    """One attempt: delivered (2xx, with the coordinator's answer when it reads as an
+    `EpisodeAck`), refused (3xx, 4xx: retrying will not help) or unreachable (no answer, or
+    the coordinator's own trouble, 5xx)."""
     headers = {"Content-Type": "application/json"}
     if pending.token:
         headers["Authorization"] = f"Bearer {pending.token}"
     body = pending.report.model_dump_json()
     try:
         async with http.post(pending.url, data=body, headers=headers) as response:
-            if response.status < 300:
-                return "delivered"
             text = await response.text()
+            if response.status < 300:
+                return "delivered", _ack(text)
             if response.status < 500:
                 log.error("episode report refused (%s): %s", response.status, text[:500])
-                return "refused"
+                return "refused", None
             log.warning("episode report answered %s: %s", response.status, text[:200])
     except (aiohttp.ClientError, TimeoutError) as exc:
         log.warning("episode report to %s failed: %s", pending.url, exc)
-    return "unreachable"
+    return "unreachable", None
+
+
+def _ack(text: str) -> EpisodeAck | None:
+    """The coordinator's answer; None from one that answers otherwise (it still counted)."""
+    try:
+        return EpisodeAck.model_validate_json(text)
+    except ValidationError as error:
+        log.warning("the coordinator's answer to a report is not an EpisodeAck: %s", error)
+        return None
 
 
 class ReportOutbox:
@@ -69,8 +83,13 @@ class ReportOutbox:
     the report address does not answer), so the worker hears it once, not per attempt.
     """
 
-    def __init__(self, on_unreachable: Callable[[str], None]) -> None:
+    def __init__(
+        self,
+        on_unreachable: Callable[[str], None],
+        on_ack: Callable[[EpisodeAck], None] | None = None,
+    ) -> None:
         self._on_unreachable = on_unreachable
+        self._on_ack = on_ack
         self._queue: deque[PendingReport] = deque()
         self._wake = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
@@ -113,7 +132,7 @@ class ReportOutbox:
             delay = FIRST_BACKOFF_S
             while self._queue:
                 head = self._queue[0]
-                outcome = await post_report(http, head)
+                outcome, ack = await post_report(http, head)
                 if outcome == "unreachable":
                     self.failed_attempts += 1
                     self._mark_unreachable(head.url)
@@ -128,6 +147,8 @@ class ReportOutbox:
                     self.refused += 1
                     continue
                 self.delivered += 1
+                if ack is not None and self._on_ack is not None:
+                    self._on_ack(ack)
                 if self.unreachable is not None:
                     log.info("the coordinator answers again: reports delivered")
                     self.unreachable = None

@@ -7,9 +7,9 @@ from typing import Any
 from fastapi import APIRouter
 
 from crowdteleop.coord.api.deps import Credentials, EpisodesDep, token_of
-from crowdteleop.coord.api.schemas import EpisodeAck, ErrorBody
+from crowdteleop.coord.api.schemas import ErrorBody
 from crowdteleop.coord.guard.errors import ApiError
-from crowdteleop.teleop.messages import EpisodeReport
+from crowdteleop.teleop.messages import EpisodeAck, EpisodeReport
 
 ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorBody} for code in (401, 403, 422)}
 router = APIRouter(prefix="/internal", tags=["internal"], responses=ERRORS)
@@ -33,4 +33,5 @@ async def episode_report(
         demos_done=recorded.demos_done,
         demos_required=session.demos_required,
         completed=recorded.completed,
+        feedback=recorded.feedback,
     )

@@ -180,14 +180,6 @@ class PhoneSessionView(BaseModel):
     ice_transport_policy: IceTransportPolicy = "all"
 
 
-class EpisodeAck(BaseModel):
-    episode_id: str
-    duplicate: bool
-    demos_done: int
-    demos_required: int
-    completed: bool
-
-
 class EpisodeView(BaseModel):
     episode_id: str
     session_id: str

@@ -11,6 +11,7 @@ from crowdteleop.coord.db.tables import Episode, Session
 from crowdteleop.coord.guard.security import new_completion_code
 from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.coordinator import Coordinator
+from crowdteleop.coord.service.feedback import worker_feedback
 from crowdteleop.coord.service.metrics import CoordMetrics
 from crowdteleop.recording.quality import (
     SCORED_METRICS,
@@ -20,6 +21,7 @@ from crowdteleop.recording.quality import (
     quality_score,
 )
 from crowdteleop.teleop.messages import EpisodeReport
+from crowdteleop.teleop.protocol import EpisodeFeedback
 
 
 @dataclass(frozen=True)
@@ -29,6 +31,7 @@ class Recorded:
     new: bool  # False: a retried report, counted before
     demos_done: int
     completed: bool  # this report completed the session
+    feedback: EpisodeFeedback | None = None  # for a measured successful demonstration
 
 
 class Episodes:
@@ -64,10 +67,11 @@ class Episodes:
                 else None,
             )
         )
+        feedback = None
         if new:
             self._metrics.episodes.labels(outcome=report.outcome).inc()
             if report.metrics is not None:
-                await self._judge(session, report.episode_id, report.metrics)
+                feedback = await self._judge(session, report, report.metrics)
         completed = False
         if new and report.outcome == "success" and done >= session.demos_required:
             campaign = self._config.campaign(session.campaign)
@@ -78,19 +82,26 @@ class Episodes:
             completed = await self._coordinator.end(
                 session.id, "completed", completion_code=code, stop_delay_s=2.0
             )
-        return Recorded(new, done, completed)
+        return Recorded(new, done, completed, feedback)
 
-    async def _judge(self, session: Session, episode_id: str, metrics: EpisodeMetrics) -> None:
+    async def _judge(
+        self, session: Session, report: EpisodeReport, metrics: EpisodeMetrics
+    ) -> EpisodeFeedback | None:
         """Its score against the campaign's successful episodes of its task so far (itself
-        included), and the flags its campaign's thresholds raise (docs/quality.md)."""
+        included) and the flags its campaign's thresholds raise, kept with it; for a
+        successful one, the worker's feedback (docs/quality.md)."""
         campaign = self._config.campaign(session.campaign)
         thresholds = campaign.quality if campaign is not None else QualityThresholds()
         distributions = {
             name: await self._episodes.metric_values(name, session.task, session.campaign)
             for name in SCORED_METRICS
         }
-        flags = [flag.model_dump() for flag in quality_flags(metrics, thresholds)]
-        await self._episodes.judge(episode_id, quality_score(metrics, distributions), flags)
+        flags = quality_flags(metrics, thresholds)
+        score = quality_score(metrics, distributions)
+        await self._episodes.judge(report.episode_id, score, [flag.model_dump() for flag in flags])
+        if report.outcome != "success":
+            return None
+        return worker_feedback(report.episode, metrics, distributions, score, flags)
 
     async def of_session(self, session_id: str) -> list[Episode]:
         """A session's episodes, oldest first."""

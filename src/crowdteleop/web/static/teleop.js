@@ -61,6 +61,22 @@ function banner(kind, text) {
 }
 function clearBanner() { $("banner").className = "banner"; }
 
+// How the last demonstration compares with the study's (the coordinator's judgement,
+// docs/quality.md): each figure beside the study's middle, and one tip.
+function showFeedback(f) {
+  const middle = (value, text) => (value === null || value === undefined ? "" : ` (study: ${text})`);
+  $("feedback-time").textContent =
+    `${f.time_s.toFixed(1)} s` + middle(f.median_time_s, `${f.median_time_s?.toFixed(1)} s`);
+  $("feedback-idle").textContent = f.idle_percent === null || f.idle_percent === undefined
+    ? "–"
+    : `${Math.round(f.idle_percent)}%` + middle(f.median_idle_percent, `${Math.round(f.median_idle_percent)}%`);
+  $("feedback-smooth").textContent = f.smoother_than_percent === null || f.smoother_than_percent === undefined
+    ? "–"
+    : `smoother than ${Math.round(f.smoother_than_percent)}% of the study's`;
+  $("feedback-tip").textContent = f.tip;
+  $("feedback").hidden = false;
+}
+
 function formatSeconds(s) {
   if (s === null || s === undefined) return "–";
   const m = Math.floor(s / 60), r = Math.round(s % 60);
@@ -231,6 +247,7 @@ function showStatus() {
   c.addEventListener("haptic", ({ detail }) => {
     if (page.device === page.devices.vr) page.devices.vr.pulse(detail.intensity);
   });
+  c.addEventListener("feedback", ({ detail }) => showFeedback(detail));
   c.addEventListener("saved", ({ detail }) => {
     if (detail.outcome === "success") banner("info", "Demonstration saved. Thank you!");
     heartbeat();
