@@ -220,6 +220,7 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path, screenshots
                     " && document.getElementById('feedback').innerText",
                     30,
                 )
+                await page.screenshot(path=str(screenshots / "teleop-feedback.png"))
                 results["phone_haptics"] = await phone.evaluate("window.crowdteleop.haptics")
                 # every message each page sent or heard was checked against the served schema
                 results["schema_stats"] = [

@@ -72,7 +72,7 @@ function showFeedback(f) {
     : `${Math.round(f.idle_percent)}%` + middle(f.median_idle_percent, `${Math.round(f.median_idle_percent)}%`);
   $("feedback-smooth").textContent = f.smoother_than_percent === null || f.smoother_than_percent === undefined
     ? "–"
-    : `smoother than ${Math.round(f.smoother_than_percent)}% of the study's`;
+    : `smoother than ${Math.round(f.smoother_than_percent)}% of the study`;
   $("feedback-tip").textContent = f.tip;
   $("feedback").hidden = false;
 }
