@@ -164,6 +164,8 @@ describe("server messages", () => {
     haptic: { v: 1, type: "haptic", intensity: 0.4, robot_part: "gripper", object: "cube" },
     episode: { v: 1, type: "episode", episode: 1, outcome: "success", steps: 230, successes: 1 },
     saved: { v: 1, type: "saved", episode: 1, outcome: "success", uri: "file:///data/ep1.hdf5" },
+    feedback: { v: 1, type: "feedback", episode: 1, score: 61.5, time_s: 12.4, median_time_s: 14, idle_percent: 12,
+                median_idle_percent: 18.5, smoother_than_percent: 55, tip: "Well done: keep going like this." },
     telemetry: { v: 1, type: "telemetry", loop_hz: 20, jitter_ms: 0.4, overruns: 0, frames_sent: 100, fps: 20,
                  bitrate_kbps: 300, rtt_ms: 12, errors: { invalid: 1 } },
   };
@@ -175,6 +177,12 @@ describe("server messages", () => {
     for (const [name, message] of Object.entries(samples)) {
       assert.deepEqual(protocol.decode(JSON.stringify(message)), message, name);
     }
+  });
+  test("decode accepts feedback before the study has a middle to compare with", () => {
+    const first = { ...samples.feedback, score: null, median_time_s: null, median_idle_percent: null,
+                    smoother_than_percent: null };
+    assert.deepEqual(protocol.decode(JSON.stringify(first)), first);
+    assert.throws(() => protocol.decode(JSON.stringify({ ...samples.feedback, tip: 3 })), ProtocolViolation);
   });
   test("decode accepts a status in a practice round", () => {
     const status = { ...samples.status, episode: 0, state: "ready", practice: "running", practice_left_s: 14.2,
