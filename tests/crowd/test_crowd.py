@@ -61,7 +61,9 @@ def test_three_bots_join_through_the_coordinator_and_complete_lift_concurrently(
         assert 0.05 < metrics["path_length_m"] < 3.0, metrics
         assert metrics["path_ratio"] >= 1.0 and metrics["clutch_reanchors"] >= 0, metrics
         assert 0.0 <= metrics["joint_limit_fraction"] <= 1.0, metrics
-        assert metrics["latency_p50_ms"] > 0, "the bots' measured latency, from the server"
+        # the latency the pages (here: bots) reported, once some has been: unknown, never 0
+        latency = metrics["latency_p50_ms"]
+        assert (latency is None or latency > 0) and metrics["loss_fraction"] >= 0, metrics
 
 
 def test_a_crowd_without_the_admin_token_is_refused_before_joining():

@@ -142,6 +142,8 @@ def test_the_network_figures_come_from_the_sessions_telemetry():
     assert (metrics.latency_p50_ms, metrics.latency_p95_ms) == (48.0, 90.5)
     assert (metrics.video_stalls, metrics.resets_before) == (2, 3)
     assert episode_metrics(motion(reach()), {}).latency_p50_ms is None, "no link: unknown"
+    unreported = episode_metrics(motion(reach()), {"latency_p50_ms": 0.0, "latency_p95_ms": 0.0})
+    assert unreported.latency_p50_ms is None, "no client reported a latency: unknown, not 0"
 
 
 def test_nan_in_the_recording_gives_unknown_metrics_not_nan():

@@ -401,6 +401,9 @@ def network_metrics(telemetry: Mapping[str, Any]) -> dict[str, Any]:
     for an episode recorded without a worker's link, such as a scripted one)."""
     names = ("latency_p50_ms", "latency_p95_ms", "rtt_jitter_ms", "loss_fraction")
     found: dict[str, Any] = {n: float(telemetry[n]) for n in names if n in telemetry}
+    for name in ("latency_p50_ms", "latency_p95_ms"):  # 0: no client reported any (unknown)
+        if found.get(name, 1.0) <= 0:
+            del found[name]
     if "episode_video_stalls" in telemetry:
         found["video_stalls"] = int(telemetry["episode_video_stalls"])
     return found
