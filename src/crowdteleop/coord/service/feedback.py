@@ -8,7 +8,12 @@ from __future__ import annotations
 import statistics
 from collections.abc import Mapping, Sequence
 
-from crowdteleop.recording.quality import EpisodeMetrics, QualityFlag, better_than
+from crowdteleop.recording.quality import (
+    SCORED_METRICS,
+    EpisodeMetrics,
+    QualityFlag,
+    better_than,
+)
 from crowdteleop.teleop.protocol import EpisodeFeedback
 
 WELL_DONE = "Well done: quicker and smoother than most. Keep going like this."
@@ -34,7 +39,7 @@ def worker_feedback(
     metric's values over the study's successful demonstrations of the task, ascending)."""
     sparc = distributions.get("sparc")
     smoother = (
-        round(100 * better_than(metrics.sparc, sparc, 1), 1)
+        round(100 * better_than(metrics.sparc, sparc, SCORED_METRICS["sparc"]), 1)
         if metrics.sparc is not None and sparc
         else None
     )
@@ -94,8 +99,8 @@ def tip(
 def _weakest(metrics: EpisodeMetrics, distributions: Mapping[str, Sequence[float]]) -> str | None:
     """The one of time, idle and smoothness this demonstration ranks lowest on, if below half."""
     ranks = {
-        name: better_than(value, values, direction)
-        for name, direction in (("completion_time_s", -1), ("idle_fraction", -1), ("sparc", 1))
+        name: better_than(value, values, SCORED_METRICS[name])
+        for name in ("completion_time_s", "idle_fraction", "sparc")
         if (value := getattr(metrics, name)) is not None and (values := distributions.get(name))
     }
     if not ranks:
