@@ -34,6 +34,11 @@ SkillName = Literal["expert", "intermediate", "novice"]
 `OperatorStyle` for each level is `control.scripted.skills.SKILLS`."""
 SKILL_NAMES: tuple[SkillName, ...] = get_args(SkillName)
 
+ReviewDecision = Literal["accepted", "rejected"]
+"""A reviewer's (or the campaign's automatic) verdict on a demonstration; an episode nobody
+has decided, or whose decision was undone, has none."""
+REVIEW_DECISIONS: tuple[ReviewDecision, ...] = get_args(ReviewDecision)
+
 ControllerName = Literal["ik-velocity", "osc"]
 """The control law turning a desired end-effector pose into simulation actions."""
 CONTROLLERS: tuple[ControllerName, ...] = get_args(ControllerName)

@@ -5,7 +5,17 @@ from __future__ import annotations
 
 from typing import Any
 
-from sqlalchemy import JSON, Float, ForeignKey, Index, Integer, String, Text, UniqueConstraint
+from sqlalchemy import (
+    JSON,
+    Boolean,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    String,
+    Text,
+    UniqueConstraint,
+)
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 
@@ -36,6 +46,9 @@ class Worker(Base):
     created_at: Mapped[float] = mapped_column(Float)
     # The region their last join landed in and the round trips that chose it (a RegionChoice).
     region: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
+    # Set when an admin blocked the worker: their joins are refused, with the reason kept.
+    blocked_at: Mapped[float | None] = mapped_column(Float, default=None)
+    blocked_reason: Mapped[str | None] = mapped_column(Text, default=None)
 
 
 class WorkerToken(Base):
@@ -118,6 +131,12 @@ class Episode(Base):
     # the metrics past the campaign's thresholds ([{metric, reason}]).
     score: Mapped[float | None] = mapped_column(Float, index=True, default=None)
     flags: Mapped[list[dict[str, str]] | None] = mapped_column(JSON, default=None)
+    # The current review decision (a ReviewDecision; null: undecided or undone) and how many
+    # decisions it has had: a reviewer decides against the number they saw, so of two
+    # reviewers deciding at once one wins and the other is told (a `review_decisions` row
+    # per decision keeps the history).
+    decision: Mapped[str | None] = mapped_column(String(16), index=True, default=None)
+    review_seq: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
 
 
 class EpisodeMetric(Base):
@@ -133,6 +152,27 @@ class EpisodeMetric(Base):
     )
     name: Mapped[str] = mapped_column(String(48), primary_key=True)
     value: Mapped[float] = mapped_column(Float)
+
+
+class ReviewDecisionRow(Base):
+    """One decision on one episode, never changed: accept, reject, or undo (decision null),
+    by whom (a reviewer's name, or "auto" for the campaign's score rule) and when. `seq` is
+    the episode's decision count after it: unique per episode, so two reviewers deciding on
+    the same state cannot both be written."""
+
+    __tablename__ = "review_decisions"
+    __table_args__ = (UniqueConstraint("episode_id", "seq", name="uq_review_decisions_seq"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    episode_id: Mapped[str] = mapped_column(
+        ForeignKey("episodes.episode_id", ondelete="CASCADE"), index=True
+    )
+    seq: Mapped[int] = mapped_column(Integer)
+    decision: Mapped[str | None] = mapped_column(String(16))
+    reason: Mapped[str] = mapped_column(Text, default="")
+    reviewer: Mapped[str] = mapped_column(String(64))
+    automatic: Mapped[bool] = mapped_column(Boolean, default=False)
+    at: Mapped[float] = mapped_column(Float, index=True)
 
 
 class PairingCode(Base):

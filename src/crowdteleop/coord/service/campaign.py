@@ -37,6 +37,42 @@ class Region(BaseModel):
         return f"{self.url.scheme}://{self.url.host}{port}"
 
 
+class ReviewPolicy(BaseModel):
+    """How a campaign's demonstrations are accepted: by reviewers on /review, and where the
+    score is clear by the score itself (docs/review.md)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    accepted_required: int = Field(
+        0,
+        ge=0,
+        le=1000,
+        description="accepted demonstrations a worker needs before their completion code; "
+        "0: the code comes after `demos_required` successes, reviewed or not",
+    )
+    auto_accept_score: float | None = Field(
+        None,
+        ge=0,
+        le=100,
+        description="a successful, unflagged demonstration scoring at least this is "
+        "accepted automatically; None: only reviewers accept",
+    )
+    auto_reject_score: float | None = Field(
+        None,
+        ge=0,
+        le=100,
+        description="a demonstration scoring below this is rejected automatically; None: "
+        "only reviewers reject",
+    )
+
+    @model_validator(mode="after")
+    def _reject_below_accept(self) -> ReviewPolicy:
+        low, high = self.auto_reject_score, self.auto_accept_score
+        if low is not None and high is not None and low >= high:
+            raise ValueError(f"auto_reject_score ({low}) must be below auto_accept_score ({high})")
+        return self
+
+
 class CampaignConfig(BaseModel):
     """One data-collection campaign; sessions are assigned round-robin over its lists."""
 
@@ -67,6 +103,10 @@ class CampaignConfig(BaseModel):
     quality: QualityThresholds = Field(
         default_factory=QualityThresholds,
         description="when a demonstration is flagged, and why (docs/quality.md)",
+    )
+    review: ReviewPolicy = Field(
+        default_factory=ReviewPolicy,
+        description="when demonstrations count as accepted, and how many a worker needs",
     )
     capacity: int | None = Field(
         None, ge=1, description="unused here: the server-wide capacity applies (CoordConfig)"
