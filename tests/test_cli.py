@@ -109,6 +109,16 @@ def test_an_unknown_skill_is_a_clear_error():
     assert "Traceback" not in run.stderr + crowd.stderr
 
 
+def test_an_unknown_fault_is_a_clear_error_and_faults_are_for_a_crowd():
+    crowd = crowdteleop(
+        "bot", "--admin-token", "a", "--coordinator", "http://127.0.0.1:9", "--faults", "idle,x"
+    )
+    assert crowd.returncode == 2 and "unknown fault(s) 'x'" in crowd.stdout
+    assert "idle, detour, drop" in crowd.stdout
+    alone = crowdteleop("bot", "--admin-token", "a", "--faults", "idle")
+    assert alone.returncode == 2 and "--faults are for a crowd" in alone.stdout
+
+
 def test_a_bad_option_is_named_in_the_error():
     run = crowdteleop("teleop-server", "--task", "lift", "--token", "short", "--port", "0")
     assert run.returncode == 2

@@ -18,7 +18,13 @@ from typer.core import TyperGroup
 from crowdteleop.coord.cli import serve  # typer only: its imports are inside the command
 from crowdteleop.errors import CrowdteleopError
 from crowdteleop.tasks import task_names
-from crowdteleop.vocab import SKILL_NAMES, ControllerName, SkillName
+from crowdteleop.vocab import (
+    INJECTED_FAULTS,
+    SKILL_NAMES,
+    ControllerName,
+    InjectedFault,
+    SkillName,
+)
 
 if TYPE_CHECKING:  # `crowdteleop --help` loads no simulator
     from crowdteleop.control.scripted import EpisodeResult
@@ -242,6 +248,17 @@ def bot(
         str | None,
         typer.Option(help="with --coordinator: skills the bots take in turn, e.g. novice,expert"),
     ] = None,
+    fault: Annotated[
+        InjectedFault | None,
+        typer.Option(
+            help="a fault made in every demonstration, to test the quality flags: a 10 s idle "
+            "before the grasp, a detour, a drop (docs/quality.md)"
+        ),
+    ] = None,
+    faults: Annotated[
+        str | None,
+        typer.Option(help="with --coordinator: faults the bots take in turn, e.g. idle,drop"),
+    ] = None,
 ) -> None:
     """Drive a running teleop session with a scripted operator, through the network; or, with
     --coordinator, join COUNT bots as workers and report what each lived through."""
@@ -250,6 +267,7 @@ def bot(
         raise typer.Exit(2)
     if coordinator is not None:
         crowd_skills = _skill_list(skills) if skills is not None else (skill,) if skill else ()
+        crowd_faults = _fault_list(faults) if faults is not None else (fault,) if fault else ()
         _crowd(
             coordinator,
             admin_token,
@@ -260,15 +278,19 @@ def bot(
             timeout,
             json_out,
             crowd_skills,
+            crowd_faults,
         )
         return
-    if skills is not None:
-        console.print("[red]error:[/red] --skills is for a crowd (--coordinator); use --skill")
+    if skills is not None or faults is not None:
+        console.print(
+            "[red]error:[/red] --skills and --faults are for a crowd (--coordinator); use "
+            "--skill and --fault"
+        )
         raise typer.Exit(2)
     from crowdteleop.client.bot import main as run_bot
 
     try:
-        result = run_bot(url, token, admin_token, episodes, timeout, skill)
+        result = run_bot(url, token, admin_token, episodes, timeout, skill, fault)
     except (ConnectionError, TimeoutError, OSError) as exc:
         console.print(f"[red]error:[/red] {exc}")
         raise typer.Exit(1) from exc
@@ -280,15 +302,25 @@ def bot(
 
 def _skill_list(text: str) -> tuple[SkillName, ...]:
     """`--skills novice,expert` as skill names; an unknown one is an error naming the known."""
+    return tuple(cast("SkillName", name) for name in _names(text, SKILL_NAMES, "skill"))
+
+
+def _fault_list(text: str) -> tuple[InjectedFault, ...]:
+    """`--faults idle,drop` as fault names; an unknown one is an error naming the known."""
+    return tuple(cast("InjectedFault", name) for name in _names(text, INJECTED_FAULTS, "fault"))
+
+
+def _names(text: str, known: tuple[str, ...], what: str) -> list[str]:
+    """A comma-separated list of `known` names; anything else is an error naming them."""
     names = [name.strip() for name in text.split(",") if name.strip()]
-    unknown = [name for name in names if name not in SKILL_NAMES]
+    unknown = [name for name in names if name not in known]
     if unknown or not names:
         console.print(
-            f"[red]error:[/red] unknown skill(s) {', '.join(map(repr, unknown)) or repr(text)};"
-            f" known: {', '.join(SKILL_NAMES)}"
+            f"[red]error:[/red] unknown {what}(s) {', '.join(map(repr, unknown)) or repr(text)};"
+            f" known: {', '.join(known)}"
         )
         raise typer.Exit(2)
-    return tuple(cast("SkillName", name) for name in names)
+    return names
 
 
 def _crowd(
@@ -301,6 +333,7 @@ def _crowd(
     timeout: float,
     json_out: Path | None,
     skills: tuple[SkillName, ...] = (),
+    faults: tuple[InjectedFault, ...] = (),
 ) -> None:
     import asyncio
 
@@ -318,6 +351,7 @@ def _crowd(
         session_timeout_s=timeout,
         phone_every=phone_every,
         skills=skills,
+        faults=faults,
     )
     with console.status(f"{count} bot(s) joining {coordinator} ..."):
         reports = asyncio.run(run_crowd(settings, count))

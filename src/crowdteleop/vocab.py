@@ -39,6 +39,12 @@ ReviewDecision = Literal["accepted", "rejected"]
 has decided, or whose decision was undone, has none."""
 REVIEW_DECISIONS: tuple[ReviewDecision, ...] = get_args(ReviewDecision)
 
+InjectedFault = Literal["idle", "detour", "drop"]
+"""A fault a synthetic worker can be told to make in each demonstration, to test that the
+quality flags catch it (`control.scripted.skills.FAULTS`): a 10 s idle before the grasp, a
+detour on the way to the object, the object dropped while carried."""
+INJECTED_FAULTS: tuple[InjectedFault, ...] = get_args(InjectedFault)
+
 ControllerName = Literal["ik-velocity", "osc"]
 """The control law turning a desired end-effector pose into simulation actions."""
 CONTROLLERS: tuple[ControllerName, ...] = get_args(ControllerName)

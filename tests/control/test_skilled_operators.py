@@ -9,9 +9,15 @@ import numpy as np
 import pytest
 
 from crowdteleop.control.scripted import OperatorStyle, ScriptedOperator, run_episode
-from crowdteleop.control.scripted.skills import SKILLS
+from crowdteleop.control.scripted.skills import SKILLS, style_for
 from crowdteleop.dataset.scripted import ScriptedEpisode, record_scripted_episode, scripted_rig
 from crowdteleop.recording.episode_file import read_episode, read_metadata
+from crowdteleop.recording.quality import (
+    EpisodeMetrics,
+    QualityFlag,
+    QualityThresholds,
+    quality_flags,
+)
 from crowdteleop.vocab import SKILL_NAMES
 
 SEEDS = range(4)
@@ -164,3 +170,33 @@ def test_a_seed_and_a_style_drive_one_exact_episode(rig):
     first = commands(5)
     assert first == commands(5)
     assert first != commands(6)
+
+
+@pytest.mark.parametrize(
+    ("fault", "metric", "words"),
+    [("idle", "longest_pause_s", "idle 10 s"), ("detour", "path_ratio", "a detour")],
+)
+def test_an_injected_fault_is_flagged_by_its_name_and_nothing_else(
+    rig, tmp_path, fault, metric, words
+):
+    """A steady operator told to make one fault: the quality flags name that fault alone (an
+    arm trembling while the hand waits is no detour)."""
+    for seed in (1, 2):
+        clean = record(rig, tmp_path, f"clean-{seed}", seed, style_for("expert"))
+        faulty = record(rig, tmp_path, f"{fault}-{seed}", seed, style_for("expert", fault))
+        assert clean.outcome == faulty.outcome == "success"
+        assert _flags(clean) == []
+        flags = _flags(faulty)
+        assert [flag.metric for flag in flags] == [metric]
+        assert words in flags[0].reason
+
+
+def test_an_injected_drop_happens_once_on_the_first_carrying_leg(rig, tmp_path):
+    episode = record(rig, tmp_path, "drop", 0, style_for("expert", "drop"))
+    assert episode.outcome != "success"
+    assert read_metadata(episode.path)["quality"]["gripper_changes"] == 3  # close, open, close
+
+
+def _flags(episode: ScriptedEpisode) -> list[QualityFlag]:
+    metrics = EpisodeMetrics.model_validate(read_metadata(episode.path)["quality"])
+    return quality_flags(metrics, QualityThresholds())

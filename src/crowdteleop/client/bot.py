@@ -21,7 +21,7 @@ from crowdteleop.control.scripted.skills import style_for
 from crowdteleop.sim.config import SimConfig
 from crowdteleop.sim.types import Pose, RobotState
 from crowdteleop.teleop.protocol import PrivilegedState
-from crowdteleop.vocab import SkillName
+from crowdteleop.vocab import InjectedFault, SkillName
 
 # Steps a finished plan waits for its episode to end before asking for a new scene: past the
 # server's success hold (`TeleopConfig.success_hold_steps`, 10), since some tasks succeed only
@@ -202,11 +202,12 @@ async def run_bot(
     timeout_s: float = 300.0,
     seed: int = 0,
     skill: SkillName | None = None,
+    fault: InjectedFault | None = None,
 ) -> BotResult:
     """One bot driving the session at `url`; `skill` names its operator's style (None: the
-    default operator)."""
+    default operator), `fault` one it makes in every episode."""
     client = TeleopClient(url, token, role="admin", admin_token=admin_token, device="bot")
-    bot = Bot(client, style=style_for(skill), seed=seed)
+    bot = Bot(client, style=style_for(skill, fault), seed=seed)
     await client.connect()
     try:
         return await bot.run(episodes, timeout_s)
@@ -221,5 +222,8 @@ def main(
     episodes: int,
     timeout_s: float,
     skill: SkillName | None = None,
+    fault: InjectedFault | None = None,
 ) -> BotResult:
-    return asyncio.run(run_bot(url, token, admin_token, episodes, timeout_s, skill=skill))
+    return asyncio.run(
+        run_bot(url, token, admin_token, episodes, timeout_s, skill=skill, fault=fault)
+    )

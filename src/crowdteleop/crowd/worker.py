@@ -19,7 +19,7 @@ from crowdteleop.client.connection import TeleopClient
 from crowdteleop.control.scripted.skills import style_for
 from crowdteleop.crowd.api import WorkerApi
 from crowdteleop.teleop.messages import OfferAnswer
-from crowdteleop.vocab import SkillName
+from crowdteleop.vocab import InjectedFault, SkillName
 
 
 @dataclass
@@ -37,6 +37,9 @@ class CrowdSettings:
     # The bots' skills (`control.scripted.skills`), taken in turn: bot i has skills[i % n].
     # Empty: every bot is the default scripted operator.
     skills: tuple[SkillName, ...] = ()
+    # Faults the bots make in every demonstration (`control.scripted.skills.FAULTS`), taken
+    # in turn like the skills: bot i makes faults[i % n]. Empty: none.
+    faults: tuple[InjectedFault, ...] = ()
     # Load tests: drive for warmup_s + window_s after the first frame, measure in the window,
     # then leave (no completion code expected).
     window_s: float | None = None
@@ -52,6 +55,7 @@ class WorkerReport:
 
     name: str
     skill: SkillName | None = None  # the synthetic worker's skill (None: the default operator)
+    fault: InjectedFault | None = None  # the fault it makes in each demonstration, if any
     session_id: str = ""
     task: str = ""
     device: str = "bot"  # what drove: the page (bot) or a paired phone
@@ -135,7 +139,7 @@ async def _one_robot(
             await _wait_for_gate(settings.start_gate)
         bot = Bot(
             driver,
-            style=style_for(report.skill),
+            style=style_for(report.skill, report.fault),
             seed=index + 1000 * report.reconnects,
             observer=observer,
         )
@@ -240,6 +244,8 @@ async def visit(http: aiohttp.ClientSession, settings: CrowdSettings, index: int
     report = WorkerReport(name=name)
     if settings.skills:
         report.skill = settings.skills[index % len(settings.skills)]
+    if settings.faults:
+        report.fault = settings.faults[index % len(settings.faults)]
     api = WorkerApi(http, settings.coordinator_url, settings.campaign)
     joined_at = time.monotonic()
     try:

@@ -28,6 +28,10 @@ SPEED_WINDOW_S = 1.0  # ... over this window, in which a hand's tremor cancels o
 IDLE_PAUSE_MIN_S = 0.5  # a shorter stop in between is part of moving, not a pause
 CHATTER_WINDOW_S = 1.0  # a gripper change this soon after the previous one is chatter
 MIN_STRAIGHT_M = 0.01  # path ratios over a shorter straight line would say nothing
+# Paths are measured on the hand's positions averaged over this window: an arm under OSC
+# holding a still command near an object trembles a few millimetres at 10 Hz, which over a
+# 10 s pause would add a metre of "path"; a person's motion (below ~2 Hz) passes unchanged.
+PATH_SMOOTHING_S = 0.2
 JOINT_LIMIT_MARGIN = 0.05  # of the joint's range: "near its limit"
 SETBACK_MIN_S = 0.5  # a stage gone back to for less is the stage test flickering
 SPARC_CUTOFF_HZ = 10.0  # spectral arc length over speeds below this (Balasubramanian 2015)
@@ -213,12 +217,32 @@ def _hand_metrics(motion: MotionInputs) -> dict[str, Any]:
     return {
         **setback_metrics(motion.stages, dt),
         **idle_metrics(moving, dt, motion.stages),
-        "path_length_m": round(path_length_m(positions), 4),
-        "path_ratio": path_ratio(positions, motion.stages),
+        **_path_metrics(smoothed(positions, round(PATH_SMOOTHING_S / dt)), motion.stages),
         "jerk_rms_m_s3": round(jerk_rms(positions, dt), 4),
         "angular_jerk_rms_rad_s3": round(jerk_rms(angular_path(pose[:, 3:]), dt), 4),
         "sparc": sparc(np.linalg.norm(np.diff(positions, axis=0), axis=1) / dt, 1 / dt),
     }
+
+
+def _path_metrics(positions: Floats, stages: Sequence[str] | None) -> dict[str, Any]:
+    return {
+        "path_length_m": round(path_length_m(positions), 4),
+        "path_ratio": path_ratio(positions, stages),
+    }
+
+
+def smoothed(path: Floats, window: int) -> Floats:
+    """(N, D) `path` averaged over `window` steps centred on each (ends held): a moving
+    average, so an oscillation whose period divides the window vanishes."""
+    if window <= 1 or len(path) < window:
+        return path
+    before = window // 2
+    padded = np.concatenate(
+        [np.repeat(path[:1], before, 0), path, np.repeat(path[-1:], window - 1 - before, 0)]
+    )
+    sums: Floats = np.cumsum(np.concatenate([np.zeros((1, path.shape[1])), padded]), axis=0)
+    averaged: Floats = (sums[window:] - sums[:-window]) / window
+    return averaged
 
 
 def _gripper_metrics(motion: MotionInputs) -> dict[str, Any]:

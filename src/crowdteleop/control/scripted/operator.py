@@ -74,6 +74,19 @@ class OperatorStyle(BaseModel):
         description="chance per carrying waypoint (gripper closed before and after) that the "
         "gripper opens once on the way there: the object drops, the plan goes on",
     )
+    grasp_idle_s: float = Field(
+        0.0, ge=0, le=60.0, description="an idle pause this long before the first grasp"
+    )
+    detour_m: float = Field(
+        0.0,
+        ge=0,
+        le=0.5,
+        description="on the first leg, the hand first wanders this far sideways (and half as "
+        "far up), then heads for the waypoint",
+    )
+    drop_once: bool = Field(
+        False, description="drop what it carries on the first carrying leg, whatever the odds"
+    )
     device_origin: tuple[float, float, float] = (0.1, -0.2, 1.2)  # where the phone starts
 
 
@@ -122,6 +135,13 @@ class ScriptedOperator:
         self._tremor = np.zeros(3)
         self._seq = 0
         self.finished = False
+        # the injected faults still to make this episode (OperatorStyle: grasp_idle_s,
+        # detour_m, drop_once): each happens once
+        self._faults = {
+            "idle": self.style.grasp_idle_s > 0,
+            "detour": self.style.detour_m > 0,
+            "drop": self.style.drop_once,
+        }
 
     @property
     def anchored(self) -> bool:
@@ -204,11 +224,14 @@ class ScriptedOperator:
         pause = 0.0
         if self._rng.random() < self.style.hesitation_probability:
             pause = self._rng.uniform(*self.style.hesitation_s)
-        self._leg = _Leg(waypoint, self._hand, pause_s=pause, wait_s=self._wait())
-        self._leg.aim = self._overshoot(waypoint)
-        if waypoint.gripper_closed and not self._gripper_closed:
+        grasp = waypoint.gripper_closed and not self._gripper_closed
+        self._leg = _Leg(waypoint, self._hand, pause_s=pause, wait_s=self._wait(grasp))
+        self._leg.aim = self._detour() or self._overshoot(waypoint)
+        if grasp:
             self._leg.chatter = self._chatter()
-        elif waypoint.gripper_closed and self._chance(self.style.drop_probability):
+        elif waypoint.gripper_closed and (
+            self._fault("drop") or self._chance(self.style.drop_probability)
+        ):
             length = float(np.linalg.norm(waypoint.pose.position - self._hand.position))
             self._leg.drop_after_m = DROP_AT_FRACTION * length
         return True
@@ -221,12 +244,29 @@ class ScriptedOperator:
             return False
         return probability >= 1.0 or bool(self._rng.random() < probability)
 
-    def _wait(self) -> float:
-        """Reaction time, and now and then a long idle pause, before setting off."""
+    def _fault(self, name: str) -> bool:
+        """Whether the injected fault `name` is due now (then it is spent for the episode)."""
+        due = self._faults[name]
+        self._faults[name] = False
+        return due
+
+    def _wait(self, grasp: bool) -> float:
+        """Reaction time, and now and then a long idle pause, before setting off (and the
+        injected idle before the first grasp)."""
         wait = self.style.reaction_s
         if self._chance(self.style.idle_probability):
             wait += float(self._rng.uniform(*self.style.idle_s))
+        if grasp and self._fault("idle"):
+            wait += self.style.grasp_idle_s
         return wait
+
+    def _detour(self) -> Pose | None:
+        """The injected detour's turning point on the first leg (None once made, or never)."""
+        assert self._hand is not None
+        if not self._fault("detour"):
+            return None
+        offset = np.array([0.0, self.style.detour_m, 0.5 * self.style.detour_m])
+        return Pose(self._hand.position + offset, self._hand.quaternion)
 
     def _overshoot(self, waypoint: Waypoint) -> Pose | None:
         """Where to aim past `waypoint` along the leg (None: straight there), never below it."""

@@ -20,7 +20,7 @@ with them.
 from __future__ import annotations
 
 from crowdteleop.control.scripted.operator import OperatorStyle
-from crowdteleop.vocab import SkillName
+from crowdteleop.vocab import InjectedFault, SkillName
 
 SKILLS: dict[SkillName, OperatorStyle] = {
     "expert": OperatorStyle(speed_m_s=0.3),
@@ -50,6 +50,19 @@ SKILLS: dict[SkillName, OperatorStyle] = {
 }
 
 
-def style_for(skill: SkillName | None) -> OperatorStyle | None:
-    """The style of `skill`; None (the default operator) without one."""
-    return None if skill is None else SKILLS[skill]
+# The faults a synthetic worker can be told to make, as changes to its style: each happens once
+# per demonstration, and each should raise the quality flag named in docs/quality.md.
+FAULTS: dict[InjectedFault, dict[str, float | bool]] = {
+    "idle": {"grasp_idle_s": 10.0},  # flag longest_pause_s: "idle 10 s in the 'grasp' stage"
+    "detour": {"detour_m": 0.4},  # flag path_ratio: "a detour: the hand travelled ..."
+    "drop": {"drop_once": True},  # flag setbacks: "went back a stage (...)"
+}
+
+
+def style_for(skill: SkillName | None, fault: InjectedFault | None = None) -> OperatorStyle | None:
+    """The style of `skill` (with `fault` injected); None (the default operator) without
+    either."""
+    if skill is None and fault is None:
+        return None
+    style = SKILLS[skill] if skill is not None else OperatorStyle()
+    return style if fault is None else style.model_copy(update=FAULTS[fault])
