@@ -20,6 +20,7 @@ from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.coordinator import Coordinator
 from crowdteleop.coord.service.episodes import Episodes
 from crowdteleop.coord.service.guards import Guards
+from crowdteleop.coord.service.history import History
 from crowdteleop.coord.service.metrics import CoordMetrics
 from crowdteleop.coord.service.pairing import Pairing
 from crowdteleop.coord.service.signaling import Signaling
@@ -72,6 +73,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         state.episodes = Episodes(store, config, metrics, coordinator)
         state.signaling = signaling
         state.guards = Guards.of(config, metrics, store)
+        state.history = History(store)
         try:
             yield
         finally:

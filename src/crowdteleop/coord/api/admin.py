@@ -1,5 +1,6 @@
 """Admin endpoints (admin bearer token): the overview with its figures (demonstrations per
-hour, completion times per worker and interface), and a privileged door into a session."""
+hour, completion times per worker and interface), the charts of the last hours, and a
+privileged door into a session."""
 
 from __future__ import annotations
 
@@ -7,14 +8,15 @@ import statistics
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Query
 
 from crowdteleop.coord.api import views
 from crowdteleop.coord.api.deps import (
     CoordinatorDep,
     EpisodesDep,
+    HistoryDep,
     MetricsDep,
     SessionId,
     SignalingDep,
@@ -22,11 +24,14 @@ from crowdteleop.coord.api.deps import (
     require_admin,
 )
 from crowdteleop.coord.api.schemas import (
+    AdminCharts,
     AdminOverview,
+    ChartBin,
     DurationSummary,
     EpisodeView,
     ErrorBody,
     HourCount,
+    ScoreBin,
     SessionSummary,
     SessionView,
     TeleopAccess,
@@ -107,6 +112,26 @@ async def overview(
         totals=await episodes.totals(),
         refusals=metrics.refusal_counts(),
         restarts=int(sum(metrics.restarts_by_cause().values())),
+    )
+
+
+@router.get("/charts", response_model=AdminCharts)
+async def charts(
+    history: HistoryDep,
+    hours: Annotated[float, Query(gt=0, le=168, description="how far back")] = 24,
+    bin_s: Annotated[float, Query(ge=60, le=86400, description="each bin's length")] = 3600,
+) -> AdminCharts:
+    """Demonstrations, queue length and wait, live sessions, latency per bin, and the quality
+    scores' distribution, over the last `hours` (from the database: no sampling)."""
+    if hours * 3600 / bin_s > 2000:
+        raise ApiError(422, "invalid_request", "at most 2000 bins: a longer bin_s, or fewer hours")
+    drawn = await history.charts(hours, bin_s)
+    return AdminCharts(
+        now_s=drawn.now_s,
+        bin_s=drawn.bin_s,
+        bins=[ChartBin.model_validate(b, from_attributes=True) for b in drawn.bins],
+        scores=[ScoreBin.model_validate(b, from_attributes=True) for b in drawn.scores],
+        unscored=drawn.unscored,
     )
 
 

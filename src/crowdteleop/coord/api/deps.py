@@ -15,6 +15,7 @@ from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.coordinator import Coordinator
 from crowdteleop.coord.service.episodes import Episodes
 from crowdteleop.coord.service.guards import Guards
+from crowdteleop.coord.service.history import History
 from crowdteleop.coord.service.metrics import CoordMetrics
 from crowdteleop.coord.service.pairing import Pairing
 from crowdteleop.coord.service.signaling import Signaling
@@ -63,6 +64,11 @@ def get_guards(request: Request) -> Guards:
     return guards
 
 
+def get_history(request: Request) -> History:
+    history: History = request.app.state.history
+    return history
+
+
 def get_metrics(request: Request) -> CoordMetrics:
     metrics: CoordMetrics = request.app.state.metrics
     return metrics
@@ -76,6 +82,7 @@ EpisodesDep = Annotated[Episodes, Depends(get_episodes)]
 SignalingDep = Annotated[Signaling, Depends(get_signaling)]
 GuardsDep = Annotated[Guards, Depends(get_guards)]
 MetricsDep = Annotated[CoordMetrics, Depends(get_metrics)]
+HistoryDep = Annotated[History, Depends(get_history)]
 
 
 # --- who is asking ---------------------------------------------------------------------------

@@ -268,6 +268,48 @@ class AdminOverview(BaseModel):
     restarts: int = Field(description="sessions given a new teleop server, since start")
 
 
+class ChartBin(BaseModel):
+    """One bin of the admin page's time charts (bin_s long; the last one still filling)."""
+
+    start_s: float = Field(description="the bin's start, Unix seconds")
+    episodes: int = Field(description="episodes reported in the bin")
+    successes: int = Field(description="of them successful: demonstrations")
+    queue_length_mean: float = Field(description="workers waiting, averaged over the bin's time")
+    queue_length_max: int = Field(description="the most waiting at once")
+    queue_wait_s_median: float | None = Field(
+        description="median wait of those who left the queue in the bin (admitted or gone)"
+    )
+    queue_wait_s_max: float | None = Field(description="the longest of those waits")
+    live_sessions_mean: float = Field(description="sessions holding a robot, averaged over time")
+    live_sessions_max: int = Field(description="the most at once")
+    latency_p50_ms: float | None = Field(
+        description="median over the bin's episodes of each one's median control-to-photon "
+        "latency (null: none measured)"
+    )
+    latency_p95_ms: float | None = Field(
+        description="median over the bin's episodes of each one's 95th percentile"
+    )
+
+
+class ScoreBin(BaseModel):
+    score_from: float = Field(description="0-100, inclusive")
+    score_to: float = Field(description="exclusive, but for the last bin's 100")
+    demonstrations: int
+
+
+class AdminCharts(BaseModel):
+    """The admin page's charts over the last hours, derived from the database's sessions and
+    episodes (so the same after a restart and on every replica)."""
+
+    now_s: float = Field(description="Unix seconds when it was computed")
+    bin_s: float = Field(description="each bin's length")
+    bins: list[ChartBin] = Field(description="oldest first, clock-aligned")
+    scores: list[ScoreBin] = Field(
+        description="quality scores of the window's successful episodes, in bins of 10"
+    )
+    unscored: int = Field(description="successful episodes of the window without a score")
+
+
 # The answers the worker's pages check before acting on them, by name (served at /views.json).
 PAGE_VIEWS: dict[str, type[BaseModel]] = {"SessionView": SessionView, "CampaignView": CampaignView}
 

@@ -1,6 +1,10 @@
-// The admin page: live sessions, the queue, teleop servers and demonstration figures.
+// The admin page: live sessions, the queue, teleop servers, demonstration figures, and the
+// charts of the last 24 hours (admin_charts.js).
 
+import { AdminCharts } from "./admin_charts.js";
 import { call } from "./api.js";
+
+const CHARTS_EVERY_MS = 30000; // the charts' bins are hours: a refresh each half minute is plenty
 
 const $ = (id) => document.getElementById(id);
 
@@ -38,8 +42,6 @@ async function refresh(token) {
   table($("sessions"), o.sessions, session);
   table($("queue"), o.queue, [["queue_position", "position"], ...session]);
   table($("servers"), o.teleop_servers, [["session_id", "session"], ["url", "url"], ["pid", "pid"], ["alive", "alive"]]);
-  const hours = o.demos_per_hour.slice().reverse().map((h) => ({ ...h, hour: new Date(h.hour_start * 1000).toLocaleString() }));
-  table($("hours"), hours, [["hour", "hour"], ["episodes", "episodes"], ["successes", "successes"]]);
   const summary = [["key", ""], ["successes", "successes"], ["episodes", "episodes"], ["mean_s", "mean s"],
     ["median_s", "median s"], ["min_s", "min s"], ["max_s", "max s"]];
   table($("per-worker"), o.completion_time_per_worker, summary);
@@ -47,6 +49,11 @@ async function refresh(token) {
   const refusals = Object.entries(o.refusals || {}).map(([reason, count]) => ({ reason, count }));
   table($("refusals"), refusals, [["reason", "refused by"], ["count", "since start"]]);
   $("restarts").textContent = `${o.restarts} sessions given a new teleop server since start`;
+}
+
+async function refreshCharts(token, charts) {
+  charts.update(await call("/api/admin/charts?hours=24", { token }));
+  $("charts-note").textContent = "";
 }
 
 async function open(token) {
@@ -61,6 +68,13 @@ async function open(token) {
   $("login").hidden = true;
   $("overview").hidden = false;
   setInterval(() => refresh(token).catch(() => {}), 2000);
+  // Drawn once the overview is shown: the charts take their boxes' widths.
+  const charts = new AdminCharts($("overview"));
+  const drawCharts = () => refreshCharts(token, charts).catch((error) => {
+    $("charts-note").textContent = `(could not load: ${error.message})`;
+  });
+  await drawCharts();
+  setInterval(drawCharts, CHARTS_EVERY_MS);
 }
 
 $("login").addEventListener("submit", (e) => { e.preventDefault(); open($("token").value); });
