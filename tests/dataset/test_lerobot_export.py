@@ -103,6 +103,7 @@ def test_lerobot_loads_the_export(dataset, exported, lerobot_python, tmp_path):
         scores = [file[f"data/demo_{e + 1}"].attrs["quality_score"] for e in range(N_DEMOS)]
     assert [e["quality_score"] for e in read["episodes"]] == pytest.approx(scores)
     assert all(0 <= score <= 100 for score in scores)
+    assert [e["review_decision"] for e in read["episodes"]] == [""] * N_DEMOS  # none decided
     # each frame's subtask (the stage the worker was in), named in meta/subtasks.parquet
     subtasks = pq.read_table(exported / "meta/subtasks.parquet").to_pydict()
     named = dict(zip(subtasks["subtask_index"], subtasks["subtask"], strict=True))

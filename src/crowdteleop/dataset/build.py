@@ -44,6 +44,7 @@ from crowdteleop.dataset.observations import (
     write_demo_pass,
 )
 from crowdteleop.dataset.quality import DemoQuality, dataset_quality, quality_masks
+from crowdteleop.dataset.selection import DemoFilter, review_attrs, review_masks, reviews_of
 from crowdteleop.dataset.summary import summarize
 from crowdteleop.provenance.controllers import ArmController
 from crowdteleop.provenance.env_args import EnvArgs
@@ -82,6 +83,8 @@ class BuildOptions:
     # max action-replay state error before a demo is flagged (not dropped); None: no replay
     drift_tolerance: float | None = DEFAULT_DRIFT_TOLERANCE
     obs: ObsSpec = DEFAULT_OBS  # observations computed from the states
+    # keep only the episodes every filter keeps (review decisions, flags, score: selection.py)
+    filters: Sequence[DemoFilter] = ()
 
 
 @dataclass
@@ -104,6 +107,7 @@ class BuildReport:
     demos: list[DemoSummary] = field(default_factory=list)
     skipped: list[tuple[str, str]] = field(default_factory=list)  # (input, why)
     flagged: list[str] = field(default_factory=list)  # demos whose action replay diverged
+    filtered_out: int = 0  # episodes the --filter options left out
     seconds: float = 0.0
 
 
@@ -172,6 +176,13 @@ def build_dataset(
         which = "" if options.include_failed else "successful "
         raise DatasetError(f"no {which}episodes to build from")
     chosen.sort(key=lambda pair: (pair[1].created_at, pair[1].episode_id))
+    kept = _filtered(chosen, options.filters)
+    if not kept:
+        raise DatasetError(
+            f"none of the {len(chosen)} episodes passes --filter "
+            + " --filter ".join(f.text for f in options.filters)
+        )
+    filtered_out, chosen = len(chosen) - len(kept), kept
     # read_inputs refused episodes without env_args
     envs = {EnvArgs.model_validate(ep.env_args).env_name for _, ep in chosen}
     if len(envs) > 1:
@@ -179,7 +190,7 @@ def build_dataset(
             f"episodes of several environments ({', '.join(sorted(envs))}): a robomimic "
             "dataset holds one; build one per task with --task"
         )
-    report = BuildReport(output=output, skipped=skipped)
+    report = BuildReport(output=output, skipped=skipped, filtered_out=filtered_out)
     drifts: list[float | None] = [None] * len(chosen)
     steps = sum(ep.steps for _, ep in chosen)
     work = Work(progress, steps * (2 if drift_tolerance is not None else 1))
@@ -256,9 +267,28 @@ def _write(
     _write_masks(
         file, report.demos, report.flagged, options.fastest, options.valid_fraction, options.seed
     )
+    reviews = reviews_of([path for path, _ in chosen])
+    for demo, review in zip(report.demos, reviews, strict=True):
+        data[demo.name].attrs.update(review_attrs(review))
     names = [demo.name for demo in report.demos]
-    for key, members in quality_masks(names, qualities).items():
+    masks = quality_masks(names, qualities) | review_masks(names, reviews)
+    for key, members in masks.items():
         file["mask"].create_dataset(key, data=np.array(members, dtype="S"))
+
+
+def _filtered(
+    chosen: list[tuple[Path, Episode]], filters: Sequence[DemoFilter]
+) -> list[tuple[Path, Episode]]:
+    """The episodes every filter keeps (scores among all of `chosen`)."""
+    if not filters:
+        return chosen
+    reviews = reviews_of([path for path, _ in chosen])
+    qualities = dataset_quality([episode for _, episode in chosen])
+    return [
+        pair
+        for pair, review, quality in zip(chosen, reviews, qualities, strict=True)
+        if all(f.keeps(review, quality) for f in filters)
+    ]
 
 
 def _write_demos(

@@ -64,6 +64,7 @@ def _progress(description: str) -> Iterator[Callable[[int, int], None]]:
 
 def _local_sources(sources: list[str], endpoint: str | None, work: Path) -> list[Path]:
     """Directories and files as given; ``s3://bucket/prefix`` downloaded into ``work``."""
+    from crowdteleop.recording.review import is_review_name
     from crowdteleop.recording.s3 import S3Config, S3Storage
 
     paths = []
@@ -74,11 +75,16 @@ def _local_sources(sources: list[str], endpoint: str | None, work: Path) -> list
         bucket, _, prefix = source[len("s3://") :].partition("/")
         store = S3Storage(S3Config(bucket=bucket, endpoint_url=endpoint))
         store.check()
-        keys = [key for key in store.list(prefix) if key.endswith(".hdf5")]
+        keys = [
+            key
+            for key in store.list(prefix)
+            if key.endswith(".hdf5") or is_review_name(key)  # decisions lie beside episodes
+        ]
         for key in keys:
             target = work / bucket / key
             store.get(store.uri(key), target)
-            paths.append(target)
+            if key.endswith(".hdf5"):
+                paths.append(target)
     return paths
 
 
@@ -105,13 +111,23 @@ def build(
             "comma-separate"
         ),
     ] = None,
+    filter_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--filter",
+            help="keep only: accepted (by a reviewer, docs/review.md), not-rejected, "
+            "unflagged, score>=N; repeat to combine",
+        ),
+    ] = None,
 ) -> None:
     """Assemble episode files into a robomimic-compatible demo.hdf5."""
     from crowdteleop.dataset.build import BuildOptions, build_dataset
     from crowdteleop.dataset.observations import LOW_DIM, parse_obs
+    from crowdteleop.dataset.selection import parse_filter
 
     with clear_errors(), tempfile.TemporaryDirectory() as work:
         wanted = parse_obs(obs or [LOW_DIM])
+        filters = [parse_filter(text) for text in filter_ or []]
         paths = _local_sources(sources, s3_endpoint, Path(work))
         with _progress("checking and assembling") as progress:
             options = BuildOptions(
@@ -123,15 +139,17 @@ def build(
                 skip_bad=skip_bad,
                 drift_tolerance=None if drift_tolerance < 0 else drift_tolerance,
                 obs=wanted,
+                filters=filters,
             )
             report = build_dataset(paths, output, options, overwrite=overwrite, progress=progress)
     for path, why in report.skipped:
         errors.print(f"[yellow]skipped[/yellow] {path}: {why}")
     for name in report.flagged:
         errors.print(f"[yellow]flagged[/yellow] {name}: action replay diverges beyond tolerance")
+    left_out = f", {report.filtered_out} left out by --filter" if filter_ else ""
     console.print(
         f"{output}: {len(report.demos)} demos, {sum(d.steps for d in report.demos)} steps, "
-        f"{len(report.flagged)} flagged, built in {report.seconds:.1f} s"
+        f"{len(report.flagged)} flagged{left_out}, built in {report.seconds:.1f} s"
     )
 
 

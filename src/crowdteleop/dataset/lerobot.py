@@ -8,7 +8,8 @@ lerobot 0.4's ``LeRobotDataset`` writes one and its ``LeRobotDatasetMetadata`` r
   channel in [0, 1], shaped (3, 1, 1), counted in frames.
 - ``meta/episodes/chunk-*/file-*.parquet``: a row per episode (``tasks``, ``length``, file
   indices, ``dataset_from_index``, ``videos/<key>/from_timestamp``, ``stats/<feature>/<stat>``,
-  ``quality_score``: the demo's score in the source dataset, docs/quality.md, -1 if none).
+  ``quality_score``: the demo's score in the source dataset, docs/quality.md, -1 if none;
+  ``review_decision``: accepted, rejected, or "" if undecided, docs/review.md).
 - ``data/`` and ``videos/<key>/``: whole episodes back to back, the next file where the next
   episode would pass the size limit; AV1 as LeRobot encodes (keyframe every 2 frames, crf 30).
 
@@ -22,7 +23,7 @@ import io
 import json
 import os
 import shutil
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -159,8 +160,8 @@ def export_lerobot(
                     group = file["data"][name]
                     rewards, dones = (group[key][()] for key in ("rewards", "dones"))
                     subtasks = subtask_names(group)
-                    score = float(group.attrs.get("quality_score", -1.0))
-                writer.add_episode(demo, obs, rewards, dones, subtasks, score)
+                    columns = episode_columns(group.attrs)
+                writer.add_episode(demo, obs, rewards, dones, subtasks, columns)
         writer.finish("-".join(robots or ["Sawyer"]).lower())
         if output.exists():
             output.rmdir()  # empty, checked above
@@ -169,6 +170,16 @@ def export_lerobot(
         writer.close()
         shutil.rmtree(tmp, ignore_errors=True)
     return output
+
+
+def episode_columns(attrs: Mapping[str, Any]) -> dict[str, Any]:
+    """A demo's quality and review as columns of meta/episodes (docs/quality.md, review.md):
+    `quality_score` (-1: not scored) and `review_decision` ("": undecided)."""
+    decision = attrs.get("review_decision", "")
+    return {
+        "quality_score": float(attrs.get("quality_score", -1.0)),
+        "review_decision": decision.decode() if isinstance(decision, bytes) else str(decision),
+    }
 
 
 class _Writer:
@@ -204,7 +215,7 @@ class _Writer:
         rewards: npt.NDArray[Any],
         dones: npt.NDArray[Any],
         subtasks: list[str] | None = None,
-        quality_score: float = -1.0,
+        columns: Mapping[str, Any] | None = None,
     ) -> None:
         keys = state_keys(list(obs.low_dim))
         widths = {key: obs.low_dim[key].shape[1] for key in keys}
@@ -234,7 +245,7 @@ class _Writer:
         frame = {key: value.astype(FEATURE_DTYPES[key]) for key, value in frame.items()}
         data_file = self.data.append(_frame_table(frame))
         entry: dict[str, Any] = {"episode_index": episode, "tasks": [task], "length": n}
-        entry["quality_score"] = quality_score  # docs/quality.md; -1: not scored
+        entry |= columns or episode_columns({})
         entry |= _indices(data_file, "data/")
         entry |= {"dataset_from_index": start, "dataset_to_index": start + n}
         stats: dict[str, dict[str, Any]] = {key: _stats(a) for key, a in frame.items()}

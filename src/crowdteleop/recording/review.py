@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path, PurePosixPath
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from crowdteleop.vocab import ReviewDecision
 
@@ -47,9 +47,14 @@ def is_review_name(name: str) -> bool:
 
 
 def current_review(episode_path: Path) -> ReviewRecord | None:
-    """The latest decision stored beside a local episode file, or None if it has none."""
+    """The latest decision stored beside a local episode file, or None if it has none; a
+    ValueError naming the file if it is not one."""
     pattern = f"{episode_path.stem}{REVIEW_MARK}{'[0-9]' * SEQ_DIGITS}.json"
     files = sorted(episode_path.parent.glob(pattern))
     if not files:
         return None
-    return ReviewRecord.model_validate_json(files[-1].read_text(encoding="utf-8"))
+    try:
+        return ReviewRecord.model_validate_json(files[-1].read_text(encoding="utf-8"))
+    except ValidationError as error:
+        reason = error.errors()[0]["msg"]
+        raise ValueError(f"{files[-1]} is not a review decision ({reason})") from error
