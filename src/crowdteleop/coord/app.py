@@ -7,7 +7,16 @@ from collections.abc import AsyncIterator
 
 from fastapi import FastAPI
 
-from crowdteleop.coord.api import admin, internal, pages, pairing, regions, server, sessions
+from crowdteleop.coord.api import (
+    admin,
+    internal,
+    pages,
+    pairing,
+    regions,
+    server,
+    sessions,
+    workers,
+)
 from crowdteleop.coord.db.engine import make_engine, migrate
 from crowdteleop.coord.db.store import Store
 from crowdteleop.coord.fleet.launcher import Launcher, LocalProcessLauncher
@@ -16,6 +25,7 @@ from crowdteleop.coord.guard.headers import SecurityHeadersMiddleware
 from crowdteleop.coord.guard.http_limits import BodyLimitMiddleware, BodyTimeoutMiddleware
 from crowdteleop.coord.guard.private import prepare_data_dir
 from crowdteleop.coord.guard.session_keys import SESSION_SECRET_FILE, SessionKeys
+from crowdteleop.coord.service.completion import Completion
 from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.coordinator import Coordinator
 from crowdteleop.coord.service.episodes import Episodes
@@ -23,6 +33,7 @@ from crowdteleop.coord.service.guards import Guards
 from crowdteleop.coord.service.history import History
 from crowdteleop.coord.service.metrics import CoordMetrics
 from crowdteleop.coord.service.pairing import Pairing
+from crowdteleop.coord.service.reputation import WorkerRecords
 from crowdteleop.coord.service.signaling import Signaling
 from crowdteleop.coord.service.workers import Workers
 from crowdteleop.web import qr
@@ -74,6 +85,9 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         state.signaling = signaling
         state.guards = Guards.of(config, metrics, store)
         state.history = History(store)
+        # The review service's decisions reach the completion hold through its on_decided.
+        state.completion = Completion(store, config, coordinator)
+        state.worker_records = WorkerRecords(store, coordinator, metrics)
         try:
             yield
         finally:
@@ -99,7 +113,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         SecurityHeadersMiddleware, docs_paths=docs_pages, connect_origins=config.region_origins()
     )
     install_error_handlers(app)
-    for router in (sessions, regions, pairing, admin, internal, pages, qr, server):
+    for router in (sessions, regions, pairing, admin, workers, internal, pages, qr, server):
         app.include_router(router.router)
     app.mount("/static", pages.StaticDirectory(pages.STATIC), name="static")
     return app

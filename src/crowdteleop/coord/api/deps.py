@@ -11,6 +11,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from crowdteleop.coord.db.tables import Session, Worker
 from crowdteleop.coord.guard.errors import ApiError
 from crowdteleop.coord.guard.security import same
+from crowdteleop.coord.service.completion import Completion
 from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.coordinator import Coordinator
 from crowdteleop.coord.service.episodes import Episodes
@@ -18,6 +19,7 @@ from crowdteleop.coord.service.guards import Guards
 from crowdteleop.coord.service.history import History
 from crowdteleop.coord.service.metrics import CoordMetrics
 from crowdteleop.coord.service.pairing import Pairing
+from crowdteleop.coord.service.reputation import WorkerRecords
 from crowdteleop.coord.service.signaling import Signaling
 from crowdteleop.coord.service.workers import Workers
 
@@ -74,6 +76,16 @@ def get_metrics(request: Request) -> CoordMetrics:
     return metrics
 
 
+def get_completion(request: Request) -> Completion:
+    completion: Completion = request.app.state.completion
+    return completion
+
+
+def get_worker_records(request: Request) -> WorkerRecords:
+    records: WorkerRecords = request.app.state.worker_records
+    return records
+
+
 ConfigDep = Annotated[CoordConfig, Depends(get_config)]
 CoordinatorDep = Annotated[Coordinator, Depends(get_coordinator)]
 WorkersDep = Annotated[Workers, Depends(get_workers)]
@@ -83,6 +95,8 @@ SignalingDep = Annotated[Signaling, Depends(get_signaling)]
 GuardsDep = Annotated[Guards, Depends(get_guards)]
 MetricsDep = Annotated[CoordMetrics, Depends(get_metrics)]
 HistoryDep = Annotated[History, Depends(get_history)]
+CompletionDep = Annotated[Completion, Depends(get_completion)]
+WorkerRecordsDep = Annotated[WorkerRecords, Depends(get_worker_records)]
 
 
 # --- who is asking ---------------------------------------------------------------------------

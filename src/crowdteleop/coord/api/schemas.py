@@ -139,6 +139,15 @@ class SessionView(BaseModel):
     preparing: RobotPreparation | None = Field(
         None, description="while starting: how long until its robot is ready; null otherwise"
     )
+    accepted_required: int | None = Field(
+        None,
+        description="accepted demonstrations the completion code waits for; null: the "
+        "campaign does not hold it for review (docs/workers.md)",
+    )
+    accepted: int | None = Field(None, description="of them accepted so far (null: no hold)")
+    awaiting_review: int | None = Field(
+        None, description="successful demonstrations not yet decided (null: no hold)"
+    )
 
 
 class HeartbeatRequest(Strict):
@@ -308,6 +317,56 @@ class AdminCharts(BaseModel):
         description="quality scores of the window's successful episodes, in bins of 10"
     )
     unscored: int = Field(description="successful episodes of the window without a score")
+
+
+class WorkerStatsView(BaseModel):
+    """A worker's figures (docs/workers.md); rates are 0-1, null without any to count."""
+
+    episodes: int
+    demonstrations: int = Field(description="successful episodes")
+    success_rate: float | None
+    median_score: float | None = Field(description="of the scored demonstrations, 0-100")
+    accepted: int
+    rejected: int
+    undecided: int = Field(description="demonstrations without a review decision")
+    acceptance_rate: float | None = Field(description="accepted over decided")
+    flags: dict[str, int] = Field(description="flags raised, by metric")
+    median_time_s: float | None = Field(description="per demonstration")
+
+
+class WorkerSummaryView(BaseModel):
+    worker_id: str
+    source: Literal["prolific", "mturk", "anonymous"]
+    external_id: str | None = Field(description="their study platform's id (PROLIFIC_PID, ...)")
+    campaign: str = Field(description="the campaign of the link they came by last")
+    created_at: float
+    blocked_at: float | None
+    blocked_reason: str | None
+    reputation: float = Field(description="0-100 (docs/workers.md)")
+    stats: WorkerStatsView
+
+
+class WorkerEpisodeView(BaseModel):
+    episode_id: str
+    session_id: str
+    number: int
+    outcome: Outcome
+    duration_s: float
+    task: str
+    created_at: float
+    score: float | None
+    flags: list[QualityFlag] | None
+    decision: Literal["accepted", "rejected"] | None
+
+
+class WorkerDetailView(WorkerSummaryView):
+    episodes: list[WorkerEpisodeView] = Field(description="oldest first")
+
+
+class BlockRequest(Strict):
+    reason: str = Field(
+        "", max_length=500, description="kept for the admins, never shown to the worker"
+    )
 
 
 # The answers the worker's pages check before acting on them, by name (served at /views.json).

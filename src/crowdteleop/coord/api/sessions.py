@@ -8,6 +8,7 @@ from fastapi import APIRouter, Body, Path, Query
 
 from crowdteleop.coord.api.deps import (
     ClientDep,
+    CompletionDep,
     ConfigDep,
     CoordinatorDep,
     GuardsDep,
@@ -108,7 +109,8 @@ async def create_session(
 ) -> SessionView:
     """The worker's live session, or a new one: ready soon, or queued when the pool is full.
     A new one is refused when its network has too many open (429), the queue is full or the
-    wait too long (503, with Retry-After)."""
+    wait too long (503, with Retry-After), or the worker was blocked (403)."""
+    workers.check_not_blocked(worker)
     campaign = workers.campaign_of(worker)
     session = await coordinator.create_session(worker, campaign, client)
     return await session_view(coordinator, session, worker)
@@ -116,9 +118,10 @@ async def create_session(
 
 @router.get("/sessions/{session_id}", response_model=SessionView)
 async def get_session(
-    session: OwnedSession, worker: WorkerDep, coordinator: CoordinatorDep
+    session: OwnedSession, worker: WorkerDep, coordinator: CoordinatorDep, held: CompletionDep
 ) -> SessionView:
-    return await session_view(coordinator, session, worker)
+    """The session; where its code waits for review, how many are accepted and awaiting."""
+    return await session_view(coordinator, session, worker, await held.progress(session))
 
 
 @router.post("/sessions/{session_id}/heartbeat", response_model=SessionView)
@@ -126,12 +129,13 @@ async def heartbeat(
     session: OwnedSession,
     worker: WorkerDep,
     coordinator: CoordinatorDep,
+    held: CompletionDep,
     body: Annotated[HeartbeatRequest | None, Body()] = None,
 ) -> SessionView:
     """Keeps the session (or its place in the queue); silence ends it as abandoned."""
     await coordinator.heartbeat(session, body.interface if body else None)
     refreshed = await coordinator.session(session.id) or session
-    return await session_view(coordinator, refreshed, worker)
+    return await session_view(coordinator, refreshed, worker, await held.progress(refreshed))
 
 
 @router.post("/sessions/{session_id}/leave", response_model=SessionView)

@@ -6,6 +6,7 @@ import time
 
 from crowdteleop.coord.api.schemas import RobotPreparation, SessionView
 from crowdteleop.coord.db.tables import Session, Worker
+from crowdteleop.coord.service.completion import ReviewProgress
 from crowdteleop.coord.service.coordinator import Coordinator
 from crowdteleop.coord.service.preparing import Preparing
 from crowdteleop.tasks import get_task
@@ -14,10 +15,13 @@ PROLIFIC_COMPLETE = "https://app.prolific.com/submissions/complete?cc="
 
 
 async def session_view(
-    coordinator: Coordinator, session: Session, worker: Worker | None
+    coordinator: Coordinator,
+    session: Session,
+    worker: Worker | None,
+    progress: ReviewProgress | None = None,
 ) -> SessionView:
     """The session as its worker's page sees it (`worker`: whose it is, for the study's way
-    back; None if unknown)."""
+    back; None if unknown; `progress`: toward a completion code held for review)."""
     position, eta = None, None
     if session.state == "queued":
         position, eta = (await coordinator.queue_positions()).get(session.id, (None, None))
@@ -49,6 +53,9 @@ async def session_view(
         notice=_notice(session),
         ready_at=session.ready_at,
         preparing=preparation_view(coordinator.preparation.of(session)),
+        accepted_required=progress.accepted_required if progress else None,
+        accepted=progress.accepted if progress else None,
+        awaiting_review=progress.awaiting_review if progress else None,
     )
 
 

@@ -37,6 +37,7 @@ class WorkerStore:
         joining with the id of a worker whose session is live is refused (`SessionInUseError`)
         unless it asks to take over: then every earlier token of the worker is revoked (the
         first browser is told as much on its next call) and the session's phones unpaired.
+        A blocked worker is refused (`WorkerBlockedError`), with nothing written.
         """
         now = time.time()
         for _attempt in range(2):  # a concurrent first join of the same id: retry once
@@ -49,6 +50,8 @@ class WorkerStore:
                                 Worker.source == source, Worker.external_id == external_id
                             )
                         )
+                    if worker is not None and worker.blocked_at is not None:
+                        raise WorkerBlockedError(worker.id)
                     created = worker is None
                     if worker is None:
                         worker = Worker(
@@ -113,6 +116,14 @@ class WorkerStore:
         """Where the worker's latest join landed (their next session records it)."""
         async with self.transactions.begin() as db:
             await db.execute(update(Worker).where(Worker.id == worker_id).values(region=region))
+
+
+class WorkerBlockedError(Exception):
+    """An admin blocked this worker: their joins are refused."""
+
+    def __init__(self, worker_id: str) -> None:
+        super().__init__(worker_id)
+        self.worker_id = worker_id
 
 
 class SessionInUseError(Exception):

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from crowdteleop.coord.db.store import Store
 from crowdteleop.coord.db.tables import Episode, Session
-from crowdteleop.coord.guard.security import new_completion_code
+from crowdteleop.coord.service.completion import Completion
 from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.coordinator import Coordinator
 from crowdteleop.coord.service.feedback import worker_feedback
@@ -40,6 +40,7 @@ class Episodes:
     ) -> None:
         self._episodes, self._sessions = store.episodes, store.sessions
         self._config, self._metrics, self._coordinator = config, metrics, coordinator
+        self._completion = Completion(store, config, coordinator)
 
     async def reporting_session(self, report_token: str) -> Session | None:
         """The session whose teleop server holds `report_token`."""
@@ -73,15 +74,8 @@ class Episodes:
             if report.metrics is not None:
                 feedback = await self._judge(session, report, report.metrics)
         completed = False
-        if new and report.outcome == "success" and done >= session.demos_required:
-            campaign = self._config.campaign(session.campaign)
-            code = (campaign.prolific_completion_code if campaign else None) or (
-                new_completion_code()
-            )
-            # A short grace lets the page hear about the saved episode before the server goes.
-            completed = await self._coordinator.end(
-                session.id, "completed", completion_code=code, stop_delay_s=2.0
-            )
+        if new and report.outcome == "success":  # the code may wait for reviews: completion.py
+            completed = await self._completion.after_success(session, done)
         return Recorded(new, done, completed, feedback)
 
     async def _judge(

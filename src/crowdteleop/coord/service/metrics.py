@@ -20,6 +20,7 @@ Refusal = Literal[
     "wait_too_long",  # the estimated wait is past max_wait_s
     "sessions_per_address",  # live sessions from one address past live_sessions_per_address
     "in_use",  # another browser holds the worker's live session
+    "blocked",  # a worker an admin blocked joined or asked for a session
     "unknown_region",  # a join's round trips name a region its campaign does not list
     "pair_bad_code",  # a wrong, used or expired pairing code
     "pair_rate_address",  # wrong codes from one address past pair_failures_per_minute
@@ -53,6 +54,11 @@ class CoordMetrics:
         )
         self.episodes = Counter(
             "crowdteleop_episodes", "Episodes reported", ["outcome"], registry=self.registry
+        )
+        self.blocks = Counter(
+            "crowdteleop_workers_blocked",
+            "Workers blocked by an admin (unblocks not subtracted)",
+            registry=self.registry,
         )
         self.launch_failures = Counter(
             "crowdteleop_launch_failures",

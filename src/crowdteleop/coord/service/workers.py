@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from crowdteleop.coord.db.store import Store
 from crowdteleop.coord.db.tables import Worker
-from crowdteleop.coord.db.workers import SessionInUseError
+from crowdteleop.coord.db.workers import SessionInUseError, WorkerBlockedError
 from crowdteleop.coord.guard.errors import ApiError
 from crowdteleop.coord.guard.identity import Identity, identify
 from crowdteleop.coord.service.campaign import CampaignConfig
@@ -80,6 +80,8 @@ class Workers:
                 presented_token=presented_token,
                 take_over=take_over,
             )
+        except WorkerBlockedError as exc:
+            raise blocked_refusal(self._metrics) from exc
         except SessionInUseError as exc:
             self._metrics.refused("in_use")
             raise ApiError(
@@ -94,6 +96,11 @@ class Workers:
         self._metrics.joins.labels(source=who.source).inc()
         return worker, token
 
+    def check_not_blocked(self, worker: Worker) -> None:
+        """Refuse (403 `blocked`) a worker an admin blocked: no new session for them."""
+        if worker.blocked_at is not None:
+            raise blocked_refusal(self._metrics)
+
     async def holder(self, token: str) -> tuple[Worker | None, bool]:
         """(the worker a token belongs to, revoked?): a revoked token names its old owner."""
         return await self._workers.token_holder(token)
@@ -104,6 +111,17 @@ class Workers:
     def campaign_of(self, worker: Worker) -> CampaignConfig:
         """The campaign of the link the worker came by last (the default one if it is gone)."""
         return self._config.campaign(worker.campaign) or self._config.default_campaign
+
+
+def blocked_refusal(metrics: CoordMetrics) -> ApiError:
+    """What a blocked worker is told (the admin's reason stays with the admin), counted."""
+    metrics.refused("blocked")
+    return ApiError(
+        403,
+        "blocked",
+        "This study no longer accepts your participation. Please return it on your study "
+        "platform; if you think this is a mistake, message the researchers there.",
+    )
 
 
 def region_choice(
