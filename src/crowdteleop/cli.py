@@ -45,6 +45,10 @@ DEFERRED_GROUPS = {
         "crowdteleop.coord.node:app",
         "Join this machine to the Ray cluster that runs teleop servers.",
     ),
+    "review": (
+        "crowdteleop.coord.cli:review_app",
+        "Files from the review decisions: bonus payments for the study platforms.",
+    ),
 }
 
 

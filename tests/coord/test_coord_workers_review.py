@@ -202,6 +202,24 @@ def test_each_workers_figures_and_reputation_and_the_bonus_files(tmp_path, datab
         )
         assert bonus("prolific", "1") == "PA,2.00\n"
         assert client.get("/api/admin/bonus?campaign=default").status_code == 401
+        assert _bonus_by_cli(database_url, tmp_path, "prolific", "0.10") == "PA,0.20\n"
+        assert _bonus_by_cli(database_url, tmp_path, "mturk", "0.5").endswith(
+            "WB,ASSIGN-B,0.50,1 accepted demonstration in default\n"
+        )
+
+
+def _bonus_by_cli(database_url: str, tmp_path, fmt: str, per: str) -> str:
+    """`crowdteleop review bonus ... -o FILE`, the file's text."""
+    from typer.testing import CliRunner
+
+    from crowdteleop.cli import app
+
+    output = tmp_path / f"bonus-{fmt}.csv"
+    arguments = ["review", "bonus", "--db", database_url, "--campaign", "default"]
+    arguments += ["--format", fmt, "--per-accepted", per, "-o", str(output)]
+    result = CliRunner().invoke(app, arguments)
+    assert result.exit_code == 0, result.output
+    return output.read_text(encoding="utf-8")
 
 
 def _report(client, teleop, number: int, outcome: str = "success") -> dict[str, Any]:

@@ -482,3 +482,50 @@ class _QuietServer:
 
     async def serve(self, sockets: list[socket.socket]) -> None:
         await self._server.serve(sockets=sockets)
+
+
+REVIEW_HELP = "Files from the review decisions: bonus payments for the study platforms."
+review_app = typer.Typer(help=REVIEW_HELP, no_args_is_help=True)
+
+
+@review_app.command("bonus")
+def review_bonus(
+    db: Annotated[str, typer.Option("--db", help="the coordinator's database URL")],
+    campaign: Annotated[str, typer.Option(help="the campaign whose demonstrations count")],
+    platform: Annotated[
+        str, typer.Option("--format", help="prolific (bulk bonus lines) or mturk (CSV)")
+    ] = "prolific",
+    per_accepted: Annotated[
+        float, typer.Option(min=0.01, help="the bonus per accepted demonstration")
+    ] = 0.10,
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="the file to write; stdout without")
+    ] = None,
+) -> None:
+    """A bonus file from the campaign's accepted demonstrations, in the form Prolific's bulk
+    bonus takes (`<participant id>,<amount>` lines) or MTurk's (WorkerId, AssignmentId,
+    BonusAmount, Reason); docs/workers.md."""
+    import asyncio
+
+    from crowdteleop.coord.db.engine import make_engine, make_sessionmaker
+    from crowdteleop.coord.db.worker_stats import WorkerStatsStore
+    from crowdteleop.coord.service.bonus import BonusFormat, bonus_file
+
+    if platform not in ("prolific", "mturk"):
+        raise typer.BadParameter("prolific or mturk", param_hint="--format")
+    chosen: BonusFormat = "mturk" if platform == "mturk" else "prolific"
+
+    async def build() -> str:
+        engine = make_engine(db)
+        try:
+            stats = WorkerStatsStore(make_sessionmaker(engine))
+            return await bonus_file(stats, campaign, chosen, per_accepted)
+        finally:
+            await engine.dispose()
+
+    text = asyncio.run(build())
+    if output is None:
+        typer.echo(text, nl=False)
+    else:
+        output.write_text(text, encoding="utf-8")
+        typer.echo(f"{len(text.splitlines())} lines written to {output}", err=True)
