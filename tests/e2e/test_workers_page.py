@@ -183,3 +183,66 @@ def test_the_workers_page_sorts_opens_a_worker_and_blocks_them(tmp_path, screens
     assert seen["status"].startswith("blocked") and "rushed" in seen["status"], seen
     assert seen["unblock_shown"], seen
     assert cai["blocked_reason"] == "rushed, dropped objects"
+
+
+HELD = {"name": "held", "demos_required": 2, "review": {"accepted_required": 2}}
+DEMOS = "document.getElementById('demos').textContent"
+
+
+async def _held_page(url: str, launcher: FakeLauncher, database_url: str) -> str:
+    """The worker's page of a campaign that holds the code for review, after two
+    demonstrations of which one is accepted: what its demonstrations line says."""
+    import httpx
+    from playwright.async_api import async_playwright
+
+    async with async_playwright() as playwright, browser_context(playwright) as ctx:
+        page = await ctx.new_page()
+        await page.goto(f"{url}/join?PROLIFIC_PID=held1&STUDY_ID=st&SESSION_ID=se&campaign=held")
+        await page.check("#consent")
+        await page.click("#agree")
+        await page.wait_for_url("**/teleop")
+        await wait_js(page, f"{DEMOS}.includes('0 of 2 accepted')", 20)
+        [teleop] = [handle.config for handle in launcher.handles.values()]
+        async with httpx.AsyncClient(base_url=url) as client:
+            for number in (1, 2):
+                report = {
+                    "session_id": teleop.session_id,
+                    "worker_id": teleop.worker_id,
+                    "episode": number,
+                    "episode_id": f"held-e{number}",
+                    "outcome": "success",
+                    "steps": 70,
+                    "duration_s": 3.5,
+                    "uri": "file:///data/ep.hdf5",
+                    "telemetry": {},
+                }
+                auth = {"Authorization": f"Bearer {teleop.report_token}"}
+                response = await client.post("/internal/episodes", json=report, headers=auth)
+                assert response.status_code == 200, response.text
+        _accept(database_url, "held-e1")
+        return str(await wait_js(page, f"{DEMOS}.includes('1 of 2') && {DEMOS}", 20))
+
+
+def _accept(database_url: str, episode_id: str) -> None:
+    from sqlalchemy import update
+
+    engine = create_engine(sync_url(database_url))
+    try:
+        with Transaction(engine) as db, db.begin():
+            db.execute(
+                update(Episode)
+                .where(Episode.episode_id == episode_id)
+                .values(decision="accepted", review_seq=1)
+            )
+    finally:
+        engine.dispose()
+
+
+def test_the_workers_own_page_says_how_many_are_accepted_and_await_review(tmp_path):
+    require_chromium()
+    launcher = FakeLauncher()
+    config = coord_config(tmp_path, capacity=1, campaigns=[HELD])
+    app = create_app(config, launcher)
+    with served_app(app, config) as url:
+        shown = asyncio.run(_held_page(url, launcher, config.database_url))
+    assert shown == "2 / 2 · 1 of 2 accepted, 1 awaiting review", shown

@@ -90,7 +90,7 @@ function showView(view) {
     $("queue-position").textContent = view.queue_position;
     $("queue-eta").textContent = formatSeconds(view.eta_s);
   }
-  $("demos").textContent = `${view.demos_done} / ${view.demos_required}`;
+  $("demos").textContent = `${view.demos_done} / ${view.demos_required}${reviewProgress(view)}`;
   $("instruction").textContent = view.instruction;
   const preparing = showPreparing($("preparing"), view.state === "starting" ? view.preparing : null);
   if (view.state === "starting") banner("info", view.notice || preparing);
@@ -112,6 +112,14 @@ function showView(view) {
     $("connection").textContent = "waiting for a new robot";
     if (view.notice) banner("info", view.notice);
   }
+}
+
+// Where the campaign holds the completion code until demonstrations are accepted
+// (docs/workers.md): "2 of 3 accepted, 1 awaiting review".
+function reviewProgress(view) {
+  if (!view.accepted_required) return "";
+  const waiting = view.awaiting_review ? `, ${view.awaiting_review} awaiting review` : "";
+  return ` · ${view.accepted} of ${view.accepted_required} accepted${waiting}`;
 }
 
 function finish(view) {
