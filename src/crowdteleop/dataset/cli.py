@@ -292,6 +292,31 @@ def replay(
 
 
 @app.command()
+def score(
+    dataset: Annotated[Path, typer.Argument(help="dataset with low-dim obs (dataset build)")],
+    k: Annotated[int, typer.Option(help="neighbours of the KSG estimator")] = 5,
+    samples_per_demo: Annotated[int, typer.Option(help="steps taken from each demo")] = 64,
+    dims: Annotated[int, typer.Option(help="principal components kept per side")] = 8,
+) -> None:
+    """Score every demo by its share of the state-action mutual information (DemInf-style,
+    no rollouts; docs/quality.md): attributes deminf_score, masks deminf_top_50/bottom_50."""
+    from crowdteleop.dataset.files import open_dataset
+    from crowdteleop.dataset.score import ScoreConfig, score_dataset
+
+    with clear_errors():
+        open_dataset(dataset).close()  # ours, readable: else a clear error
+        config = ScoreConfig(k=k, samples_per_demo=samples_per_demo, dims=dims)
+        with _progress("reading demos") as progress:
+            result = score_dataset(dataset, config, progress)
+    ranked = sorted(zip(result.scores, result.names, strict=True), reverse=True)
+    console.print(
+        f"{dataset}: {len(result.names)} demos scored from {result.samples} samples in "
+        f"{result.seconds:.1f} s; best {ranked[0][1]} ({ranked[0][0]:.2f} nats), worst "
+        f"{ranked[-1][1]} ({ranked[-1][0]:.2f}); masks deminf_top_50, deminf_bottom_50"
+    )
+
+
+@app.command()
 def stats(
     sources: Annotated[list[Path], typer.Argument(help="dataset file(s) or episode dirs")],
     output: Annotated[Path, typer.Option(help="directory for stats.json/.md and PNGs")] = Path(

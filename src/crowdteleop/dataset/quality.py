@@ -57,17 +57,25 @@ def dataset_quality(
 
 def quality_masks(names: Sequence[str], qualities: Sequence[DemoQuality]) -> dict[str, list[str]]:
     """The filter keys, each in the dataset's demo order."""
-    order = {name: i for i, name in enumerate(names)}
-    scored = [
-        (-q.score, order[name], name)
-        for name, q in zip(names, qualities, strict=True)
-        if q.score is not None
-    ]
-    ranked = [name for *_, name in sorted(scored)]
-    half = len(ranked) // 2
-    top, bottom = set(ranked[:half]), set(ranked[len(ranked) - half :])
+    scored = [(n, q.score) for n, q in zip(names, qualities, strict=True) if q.score is not None]
+    top, bottom = halves([n for n, _ in scored], [s for _, s in scored])
+    order = set(top), set(bottom)
     return {
-        "quality_top_50": [n for n in names if n in top],
-        "quality_bottom_50": [n for n in names if n in bottom],
+        "quality_top_50": [n for n in names if n in order[0]],
+        "quality_bottom_50": [n for n in names if n in order[1]],
         "quality_unflagged": [n for n, q in zip(names, qualities, strict=True) if not q.flags],
     }
+
+
+def halves(names: Sequence[str], scores: Sequence[float]) -> tuple[list[str], list[str]]:
+    """The higher- and lower-scored halves, each in `names` order (ties go to the earlier
+    name; the middle one of an odd count is in neither): the `_top_50`/`_bottom_50` keys."""
+    ranked = [
+        name
+        for *_, name in sorted(
+            (-s, i, n) for i, (n, s) in enumerate(zip(names, scores, strict=True))
+        )
+    ]
+    half = len(ranked) // 2
+    top, bottom = set(ranked[:half]), set(ranked[len(ranked) - half :])
+    return [n for n in names if n in top], [n for n in names if n in bottom]

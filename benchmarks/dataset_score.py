@@ -1,0 +1,63 @@
+"""What `crowdteleop dataset score` costs on a campaign of 1,000 demonstrations (issue 29:
+<= 2 minutes on 2 cores). The 1,000 demos are made from a real built dataset's demos, each
+copied with small noise on its observations and actions (so no two are equal): the same
+lengths and dimensions a campaign's demos have.
+
+    .venv/bin/python benchmarks/dataset_score.py out/quality_bc/lift.hdf5 --demos 1000 --repeats 3
+"""
+
+from __future__ import annotations
+
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import typer
+from rich.console import Console
+
+from crowdteleop.dataset.score import OBS_KEYS, score_dataset
+
+app = typer.Typer(add_completion=False)
+console = Console(soft_wrap=True)
+
+
+def campaign(source: Path, target: Path, demos: int) -> int:
+    """`demos` noisy copies of the source's demos, in turn; the total steps."""
+    rng = np.random.default_rng(0)
+    steps = 0
+    with h5py.File(source, "r") as read, h5py.File(target, "w") as write:
+        names = sorted(read["data"], key=lambda name: int(name.rpartition("_")[2]))
+        data = write.create_group("data")
+        for k in range(demos):
+            demo = read["data"][names[k % len(names)]]
+            group = data.create_group(f"demo_{k + 1}")
+            actions = demo["actions"][()]
+            group["actions"] = actions + 0.01 * rng.standard_normal(actions.shape)
+            for key in OBS_KEYS:
+                values = demo[f"obs/{key}"][()]
+                group[f"obs/{key}"] = values + 0.001 * rng.standard_normal(values.shape)
+            steps += len(actions)
+    return steps
+
+
+@app.command()
+def main(source: Path, demos: int = 1000, repeats: int = 3) -> None:
+    with tempfile.TemporaryDirectory() as folder:
+        target = Path(folder) / "campaign.hdf5"
+        steps = campaign(source, target, demos)
+        seconds = []
+        for _ in range(repeats):
+            started = time.perf_counter()
+            result = score_dataset(target)
+            seconds.append(time.perf_counter() - started)
+    console.print(
+        f"{demos} demos ({steps} steps, {result.samples} samples): score in median "
+        f"{statistics.median(seconds):.1f} s (runs: {', '.join(f'{s:.1f}' for s in seconds)})"
+    )
+
+
+if __name__ == "__main__":
+    app()
