@@ -104,3 +104,14 @@ def test_bad_input_is_a_clear_error(clean, tmp_path):
         del file["data/demo_2/obs/object"]
     with pytest.raises(DatasetError, match="demo_2 has no object"):
         score_dataset(bare)
+    run = crowdteleop("dataset", "score", str(bare))
+    assert run.returncode == 2 and "error:" in run.stderr and "Traceback" not in run.stderr
+    with h5py.File(bare, "a") as file:
+        del file["data/demo_1/actions"]
+    with pytest.raises(DatasetError, match="demo_1 has no actions"):
+        score_dataset(bare)
+    foreign = tmp_path / "foreign.hdf5"
+    with h5py.File(foreign, "w") as file:
+        file["x"] = np.zeros(3)
+    run = crowdteleop("dataset", "score", str(foreign))
+    assert run.returncode == 2 and "not a crowdteleop dataset" in " ".join(run.stderr.split())
