@@ -1,5 +1,5 @@
 """The coordinator's database as the service sees it: one engine, and a store per concern
-(workers, sessions, episodes, pairing), each call one short transaction; the tables that
+(workers, sessions, episodes, pairing, reviews), each call one short transaction; the tables that
 replicas share (their heartbeats, the warm spares, the shared limits) and the admission lock
 are made here too, on the same engine."""
 
@@ -15,6 +15,7 @@ from crowdteleop.coord.db.engine import make_sessionmaker
 from crowdteleop.coord.db.episodes import EpisodeStore
 from crowdteleop.coord.db.pairing import PairingStore
 from crowdteleop.coord.db.replicas import AdmissionLock, Replicas
+from crowdteleop.coord.db.reviews import ReviewStore
 from crowdteleop.coord.db.sessions import SessionStore
 from crowdteleop.coord.db.shared_limits import SHARED_WINDOW_S, SharedWindowLimiter, forget_old
 from crowdteleop.coord.db.spare_registry import SpareRegistry
@@ -32,6 +33,7 @@ class Store:
         self.sessions = SessionStore(self.transactions)
         self.episodes = EpisodeStore(self.transactions)
         self.pairing = PairingStore(self.transactions)
+        self.reviews = ReviewStore(self.transactions)
 
     async def close(self) -> None:
         await self.engine.dispose()
