@@ -5,13 +5,17 @@ refusals, and the decision stored beside the episode file."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from sqlalchemy import create_engine
+from sqlalchemy.orm import Session as Transaction
 
-from crowdteleop.coord.db.engine import make_engine, migrate
+from crowdteleop.coord.db.engine import make_engine, migrate, sync_url
 from crowdteleop.coord.db.reviews import (
     EpisodeNotFoundError,
     NothingToUndoError,
@@ -20,6 +24,10 @@ from crowdteleop.coord.db.reviews import (
 )
 from crowdteleop.coord.db.store import Store
 from crowdteleop.coord.db.tables import Episode, Session, Worker
+from crowdteleop.recording.review import current_review
+from tests.fixtures.coord import ADMIN, FakeLauncher, coord_config, in_process_app
+
+pytestmark = pytest.mark.filterwarnings("ignore:Using `httpx`")
 
 
 def _run(coroutine):
@@ -209,3 +217,157 @@ def test_a_malformed_filter_is_refused_by_name():
         ReviewFilters.model_validate({"decision": "maybe"})
     with pytest.raises(ValueError, match="extra"):
         ReviewFilters.model_validate({"colour": "red"})
+
+
+# --- the API ---------------------------------------------------------------------------------
+
+ADA = "ada-review-token-Zr8Qm2Xv7Lp4Kw9N"
+AUTO_CAMPAIGN = {"name": "auto", "review": {"auto_accept_score": 80, "auto_reject_score": 30}}
+
+
+def _write(database_url: str, rows: list[Any]) -> None:
+    engine = create_engine(sync_url(database_url))
+    try:
+        with Transaction(engine) as db, db.begin():
+            for row in rows:
+                db.add(row)
+                db.flush()
+    finally:
+        engine.dispose()
+
+
+@contextlib.contextmanager
+def _reviewing(tmp_path: Path, database_url: str) -> Iterator[Any]:
+    """The app with the crowd's rows, their episode files' folder made, and ada a reviewer."""
+    config = coord_config(
+        tmp_path, database_url, reviewer_tokens={"ada": ADA}, campaigns=[{}, AUTO_CAMPAIGN]
+    )
+    (tmp_path / "episodes").mkdir()
+    with in_process_app(config, FakeLauncher()) as client:
+        _write(database_url, _crowd(tmp_path / "episodes"))
+        yield client
+
+
+def _as(token: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}"}
+
+
+def _decide(client, eid: str, token: str = ADA, **body: Any):
+    return client.post(f"/api/review/episodes/{eid}/decision", json=body, headers=_as(token))
+
+
+def test_who_may_review(tmp_path, database_url):
+    with _reviewing(tmp_path, database_url) as client:
+        assert client.get("/api/review/me", headers=_as(ADA)).json() == {"reviewer": "ada"}
+        assert client.get("/api/review/me", headers=_as(ADMIN)).json() == {"reviewer": "admin"}
+        for headers in ({}, _as("forged-token-0123456789abcdef"), {"Authorization": "Basic x"}):
+            answer = client.get("/api/review/episodes", headers=headers)
+            assert answer.status_code == 401, headers
+            assert answer.json()["error"] == "unauthorized"
+            refused = _decide(client, "e1", "", decision="accepted", expected_seq=0)
+            assert refused.status_code == 401
+        counts = client.app_state.metrics.refusal_counts()
+        assert counts["admin_bad_token"] >= 3
+        history = client.get("/api/review/episodes/e1", headers=_as(ADA)).json()["history"]
+        assert history == [], "nothing refused was recorded"
+        page = client.get("/review")
+        assert page.status_code == 200 and "review.js" in page.text
+
+
+def test_deciding_through_the_api_stores_the_decision_beside_the_file(tmp_path, database_url):
+    with _reviewing(tmp_path, database_url) as client:
+        answer = _decide(client, "e2", decision="accepted", expected_seq=0)
+        assert answer.status_code == 200, answer.text
+        assert answer.json()["episode"]["decision"] == "accepted"
+        episode_file = tmp_path / "episodes" / "e2.hdf5"
+        stored = current_review(episode_file)
+        assert stored is not None
+        assert (stored.seq, stored.decision, stored.reviewer) == (1, "accepted", "ada")
+
+        rejected = _decide(client, "e2", ADMIN, decision="rejected", reason="slow", expected_seq=1)
+        assert rejected.json()["decision"]["reviewer"] == "admin"
+        undo = client.post(
+            "/api/review/episodes/e2/undo", json={"expected_seq": 2}, headers=_as(ADA)
+        )
+        assert undo.json()["episode"]["decision"] == "accepted"
+        current = current_review(episode_file)
+        assert current is not None and (current.seq, current.decision) == (3, "accepted")
+        assert len(list((tmp_path / "episodes").glob("e2.review.*.json"))) == 3, "none replaced"
+        detail = client.get("/api/review/episodes/e2", headers=_as(ADA)).json()
+        assert [(h["seq"], h["decision"], h["reviewer"]) for h in detail["history"]] == [
+            (1, "accepted", "ada"),
+            (2, "rejected", "admin"),
+            (3, "accepted", "ada"),
+        ]
+        assert detail["history"][1]["reason"] == "slow"
+
+
+def test_bad_input_is_a_clear_error_and_loses_nothing(tmp_path, database_url):
+    with _reviewing(tmp_path, database_url) as client:
+        assert _decide(client, "e1", decision="accepted", expected_seq=0).status_code == 200
+        late = _decide(client, "e1", decision="rejected", reason="no", expected_seq=0)
+        assert late.status_code == 409
+        body = late.json()
+        assert body["error"] == "conflict" and "decided by ada" in body["message"]
+        assert (body["episode"]["decision"], body["episode"]["review_seq"]) == ("accepted", 1)
+
+        unknown = _decide(client, "nope", decision="accepted", expected_seq=0)
+        assert (unknown.status_code, unknown.json()["error"]) == (404, "not_found")
+        assert client.get("/api/review/episodes/nope", headers=_as(ADA)).status_code == 404
+        nothing = client.post(
+            "/api/review/episodes/e5/undo", json={"expected_seq": 1}, headers=_as(ADA)
+        )
+        assert nothing.status_code == 409
+
+        malformed = {
+            "score_min=90&score_max=10": "score_min",
+            "decision=maybe": "decision",
+            "sort=colour": "sort",
+            "limit=0": "limit",
+            "flagged=perhaps": "flagged",
+            "colour=red": "colour",
+        }
+        for query, field in malformed.items():
+            answer = client.get(f"/api/review/episodes?{query}", headers=_as(ADA))
+            assert answer.status_code == 422, query
+            assert answer.json()["error"] == "invalid_request"
+            assert field in answer.json()["message"], answer.json()
+        no_reason = _decide(client, "e3", decision="rejected", expected_seq=0)
+        assert no_reason.status_code == 422 and "reason" in no_reason.json()["message"]
+        assert _decide(client, "e3", decision="maybe", expected_seq=0).status_code == 422
+        counts = client.app_state.metrics.refusal_counts()
+        assert counts["review_conflict"] == 2 and counts["review_unknown_episode"] == 2
+        assert counts["review_invalid"] == 8
+
+        page = client.get("/api/review/episodes?decision=accepted", headers=_as(ADA)).json()
+        assert [e["episode_id"] for e in page["episodes"]] == ["e1"]
+        assert (
+            client.get("/api/review/episodes/e1", headers=_as(ADA)).json()["history"][0]["reviewer"]
+            == "ada"
+        )
+        assert client.get("/api/review/episodes/e3", headers=_as(ADA)).json()["history"] == []
+
+
+def test_a_video_that_cannot_be_rendered_says_why(tmp_path, database_url):
+    with _reviewing(tmp_path, database_url) as client:
+        card = client.get("/api/review/episodes/e1", headers=_as(ADA)).json()
+        answer = client.get(card["video_url"])  # e1's file was never recorded
+        assert answer.status_code == 502, answer.text
+        assert "e1.hdf5 is missing" in answer.json()["message"]
+        forged = card["video_url"].replace("sig=", "sig=0")[:-1]
+        assert client.get(forged).status_code == 401
+        other = card["video_url"].replace("/e1/", "/e2/")
+        assert client.get(other).status_code == 401, "a link is for its episode only"
+
+
+def test_the_campaigns_score_rule_decides_automatically(tmp_path, database_url):
+    with _reviewing(tmp_path, database_url) as client:
+        automatic = client.app_state.reviews.automatic
+        decided = {eid: client.portal.call(automatic, eid, "auto") for eid in ("e1", "e2", "e4")}
+        assert decided["e1"] is not None and decided["e1"].decision.decision == "accepted"
+        assert decided["e2"] is None, "flagged: left to the reviewers"
+        assert decided["e4"] is not None and decided["e4"].decision.decision == "rejected"
+        assert decided["e4"].decision.reviewer == "auto" and decided["e4"].decision.automatic
+        assert client.portal.call(automatic, "e5", "default") is None, "no rule: none"
+        stored = current_review(tmp_path / "episodes" / "e1.hdf5")
+        assert stored is not None and stored.automatic

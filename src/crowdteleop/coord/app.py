@@ -13,6 +13,7 @@ from crowdteleop.coord.api import (
     pages,
     pairing,
     regions,
+    review,
     server,
     sessions,
     workers,
@@ -34,6 +35,8 @@ from crowdteleop.coord.service.history import History
 from crowdteleop.coord.service.metrics import CoordMetrics
 from crowdteleop.coord.service.pairing import Pairing
 from crowdteleop.coord.service.reputation import WorkerRecords
+from crowdteleop.coord.service.review import Reviews
+from crowdteleop.coord.service.review_video import EpisodeVideos, MediaLinks
 from crowdteleop.coord.service.signaling import Signaling
 from crowdteleop.coord.service.workers import Workers
 from crowdteleop.web import qr
@@ -88,6 +91,11 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         # The review service's decisions reach the completion hold through its on_decided.
         state.completion = Completion(store, config, coordinator)
         state.worker_records = WorkerRecords(store, coordinator, metrics)
+        state.reviews = Reviews(store, config, metrics, on_decided=state.completion.on_decided)
+        state.review_videos, state.review_links = (
+            EpisodeVideos(config),
+            MediaLinks(config.admin_token),
+        )
         try:
             yield
         finally:
@@ -113,7 +121,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         SecurityHeadersMiddleware, docs_paths=docs_pages, connect_origins=config.region_origins()
     )
     install_error_handlers(app)
-    for router in (sessions, regions, pairing, admin, workers, internal, pages, qr, server):
+    for router in (sessions, regions, pairing, admin, workers, review, internal, pages, qr, server):
         app.include_router(router.router)
     app.mount("/static", pages.StaticDirectory(pages.STATIC), name="static")
     return app

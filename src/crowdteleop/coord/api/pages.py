@@ -13,7 +13,7 @@ from starlette.exceptions import HTTPException
 from starlette.types import Scope
 
 STATIC = Path(__file__).resolve().parents[2] / "web" / "static"
-PAGES = ("join", "teleop", "phone", "admin", "workers")
+PAGES = ("join", "teleop", "phone", "admin", "workers", "review")
 router = APIRouter(include_in_schema=False)
 
 MISSING = """<!doctype html><meta charset="utf-8"><title>Page missing</title>

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, cast
 
@@ -22,6 +23,7 @@ if TYPE_CHECKING:
 # CROWDTELEOP_<FIELD> sets a CoordConfig field (`crowdteleop serve`, docs/coordination.md).
 ENV_PREFIX = "CROWDTELEOP_"
 MAX_SPARES_PER_KIND = 16
+REVIEWER_NAME = re.compile(r"[A-Za-z0-9_.-]{1,64}")
 
 
 class AdmissionConfig(BaseModel):
@@ -72,6 +74,11 @@ class CoordConfig(BaseModel):
         "where a spare holds a slot, one per kind",
     )
     admin_token: str = Field(min_length=16, max_length=256)
+    reviewer_tokens: dict[str, str] = Field(
+        default_factory=dict,
+        description="reviewer name -> token for the /review page (docs/review.md): each "
+        "decision records the name; the admin token reviews too, as 'admin'",
+    )
     public_url: str = Field(
         "http://127.0.0.1:8000", description="base URL phones and browsers reach us at"
     )
@@ -168,6 +175,21 @@ class CoordConfig(BaseModel):
                 "e.g. `python -c 'import secrets; print(secrets.token_urlsafe(32))'`"
             )
         return token
+
+    @field_validator("reviewer_tokens")
+    @classmethod
+    def _reviewers(cls, reviewers: dict[str, str]) -> dict[str, str]:
+        for name, token in reviewers.items():
+            if not REVIEWER_NAME.fullmatch(name) or name in ("admin", "auto"):
+                raise ValueError(f"reviewer name {name!r}: 1-64 of A-Z a-z 0-9 _ . -, not admin")
+            if estimated_entropy_bits(token) < ADMIN_TOKEN_MIN_BITS:
+                raise ValueError(
+                    f"reviewer {name}'s token looks too weak: as strong as the admin token's "
+                    "(e.g. `python -c 'import secrets; print(secrets.token_urlsafe(32))'`)"
+                )
+        if len(set(reviewers.values())) != len(reviewers):
+            raise ValueError("each reviewer needs a token of their own")
+        return reviewers
 
     @field_validator("spare_servers")
     @classmethod

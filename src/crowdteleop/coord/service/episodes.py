@@ -13,6 +13,7 @@ from crowdteleop.coord.service.config import CoordConfig
 from crowdteleop.coord.service.coordinator import Coordinator
 from crowdteleop.coord.service.feedback import worker_feedback
 from crowdteleop.coord.service.metrics import CoordMetrics
+from crowdteleop.coord.service.review import Reviews
 from crowdteleop.recording.quality import (
     SCORED_METRICS,
     EpisodeMetrics,
@@ -41,6 +42,7 @@ class Episodes:
         self._episodes, self._sessions = store.episodes, store.sessions
         self._config, self._metrics, self._coordinator = config, metrics, coordinator
         self._completion = Completion(store, config, coordinator)
+        self._reviews = Reviews(store, config, metrics)  # its automatic decisions by score
 
     async def reporting_session(self, report_token: str) -> Session | None:
         """The session whose teleop server holds `report_token`."""
@@ -73,6 +75,7 @@ class Episodes:
             self._metrics.episodes.labels(outcome=report.outcome).inc()
             if report.metrics is not None:
                 feedback = await self._judge(session, report, report.metrics)
+                await self._reviews.automatic(report.episode_id, session.campaign)
         completed = False
         if new and report.outcome == "success":  # the code may wait for reviews: completion.py
             completed = await self._completion.after_success(session, done)

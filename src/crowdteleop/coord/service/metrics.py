@@ -27,6 +27,9 @@ Refusal = Literal[
     "pair_rate_total",  # wrong codes from everyone past pair_failures_per_minute_total
     "admin_bad_token",  # a wrong admin token
     "admin_rate",  # wrong admin tokens from one address past admin_failures_per_minute
+    "review_unknown_episode",  # a decision or a look at an episode that does not exist
+    "review_conflict",  # a decision on an episode decided meanwhile (or nothing to undo)
+    "review_invalid",  # a malformed filter or decision on the review API
 ]
 RestartCause = Literal["exited", "hung", "coordinator_restart"]
 
