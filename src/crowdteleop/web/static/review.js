@@ -217,7 +217,7 @@ const KEYS = {
 
 function onKey(event) {
   const typing = event.target instanceof HTMLInputElement || event.target instanceof HTMLSelectElement;
-  if (event.key === "Escape") { $("reject-form").hidden = true; return; }
+  if (event.key === "Escape") { $("reason").blur(); $("reject-form").hidden = true; return; }
   if (typing || event.ctrlKey || event.metaKey || event.altKey || $("review-view").hidden) return;
   const action = KEYS[event.key];
   if (!action || (event.key !== "j" && event.key !== "k" && !current())) return;
@@ -257,6 +257,7 @@ $("reject").addEventListener("click", askReason);
 $("undo").addEventListener("click", KEYS.u);
 $("reject-form").addEventListener("submit", (e) => {
   e.preventDefault();
+  $("reason").blur();  // the keys are the page's again
   $("reject-form").hidden = true;
   decide("decision", { decision: "rejected", reason: $("reason").value });
 });
