@@ -24,8 +24,12 @@ from crowdteleop.coord.db.reviews import (
 )
 from crowdteleop.coord.db.store import Store
 from crowdteleop.coord.db.tables import Episode, Session, Worker
-from crowdteleop.recording.review import current_review
-from tests.fixtures.coord import ADMIN, FakeLauncher, coord_config, in_process_app
+from crowdteleop.coord.service.metrics import CoordMetrics
+from crowdteleop.coord.service.review import DecidedMeanwhileError, Reviews, Sidecars
+from crowdteleop.recording.review import ReviewRecord, current_review
+from crowdteleop.recording.stores import StorageConfig
+from tests.fixtures.coord import ADMIN, Api, FakeLauncher, coord_config, in_process_app
+from tests.fixtures.s3 import BUCKET, moto_s3
 
 pytestmark = pytest.mark.filterwarnings("ignore:Using `httpx`")
 
@@ -371,3 +375,85 @@ def test_the_campaigns_score_rule_decides_automatically(tmp_path, database_url):
         assert client.portal.call(automatic, "e5", "default") is None, "no rule: none"
         stored = current_review(tmp_path / "episodes" / "e1.hdf5")
         assert stored is not None and stored.automatic
+
+
+def test_the_hook_hears_every_reviewers_decision(tmp_path, database_url):
+    heard: list[tuple[str, str | None]] = []
+
+    async def hook(episode: Episode) -> None:
+        heard.append((episode.episode_id, episode.decision))
+
+    async def scenario() -> None:
+        store = await _store(database_url, _crowd(tmp_path))
+        config = coord_config(tmp_path, database_url)
+        reviews = Reviews(store, config, CoordMetrics(), on_decided=hook)
+        try:
+            await reviews.decide("e1", 0, "accepted", "", "ada")
+            await reviews.undo("e1", 1, "ada")
+            with pytest.raises(DecidedMeanwhileError):
+                await reviews.decide("e1", 0, "rejected", "late", "bob")
+        finally:
+            await store.close()
+
+    _run(scenario())
+    assert heard == [("e1", "accepted"), ("e1", None)], "not the refused one"
+
+
+def test_a_decision_on_an_s3_episode_is_stored_beside_it_in_the_bucket(tmp_path):
+    with moto_s3() as server:
+        server.client().create_bucket(Bucket=BUCKET)
+        s3 = server.config(prefix="campaign-7")
+        sidecars = Sidecars(StorageConfig(kind="s3", s3=s3))
+        uri = f"s3://{BUCKET}/campaign-7/episodes/s_1/ep-3.hdf5"
+        record = ReviewRecord(
+            episode_id="ep-3", seq=2, decision="rejected", reason="dropped", reviewer="ada", at=1.0
+        )
+        sidecars.write(uri, record)
+        local = tmp_path / "ep-3.review.000002.json"
+        key = "campaign-7/episodes/s_1/ep-3.review.000002.json"
+        server.client().download_file(BUCKET, key, str(local))
+    assert current_review(tmp_path / "ep-3.hdf5") == record
+    with pytest.raises(ValueError, match="not in the configured store"):
+        sidecars.write("s3://elsewhere/x.hdf5", record)
+
+
+def test_an_automatic_accept_of_a_reported_episode_releases_the_held_code(tmp_path, database_url):
+    """The score rule runs as the report is recorded, before the completion check: a
+    campaign that holds the code for one accepted demonstration completes at once."""
+    held = {
+        "name": "held",
+        "demos_required": 1,
+        "review": {"accepted_required": 1, "auto_accept_score": 10},
+        "prolific_completion_code": "AUTO2024",
+    }
+    launcher = FakeLauncher()
+    config = coord_config(tmp_path, database_url, capacity=1, campaigns=[held])
+    params = {"PROLIFIC_PID": "5f0a1b2c3d4e5f6a7b8c9d0f", "STUDY_ID": "s1", "SESSION_ID": "x1"}
+    with in_process_app(config, launcher) as client:
+        api = Api(client)
+        token = api.join(params, campaign="held")["worker_token"]
+        sid = api.new_session(token)["session_id"]
+        api.wait_state(token, sid, "ready")
+        teleop = launcher.handles[sid].config
+        report = {
+            "session_id": sid,
+            "worker_id": teleop.worker_id,
+            "episode": 1,
+            "episode_id": f"{sid}-e1",
+            "outcome": "success",
+            "steps": 70,
+            "duration_s": 3.5,
+            "uri": (tmp_path / "e1.hdf5").as_uri(),
+            "telemetry": {},
+            "metrics": {"completion_time_s": 3.5},
+        }
+        headers = {"Authorization": f"Bearer {teleop.report_token}"}
+        answer = client.post("/internal/episodes", json=report, headers=headers)
+        assert answer.status_code == 200 and answer.json()["completed"] is True, answer.text
+        assert api.session(token, sid)["completion_code"] == "AUTO2024"
+        detail = client.get(f"/api/review/episodes/{sid}-e1", headers=_as(ADMIN)).json()
+    assert [(h["decision"], h["reviewer"], h["automatic"]) for h in detail["history"]] == [
+        ("accepted", "auto", True)
+    ]
+    stored = current_review(tmp_path / "e1.hdf5")
+    assert stored is not None and stored.reviewer == "auto"
