@@ -1,4 +1,5 @@
-"""The reviewer API's request and response bodies (coord/api/review.py, docs/review.md)."""
+"""The reviewer API's request and response bodies (coord/api/review.py, docs/review.md); the
+answers the reviewer page acts on are among the views served at /views.json (schemas.py)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,6 @@ from typing import Self
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from crowdteleop.coord.api.schemas import ErrorBody
 from crowdteleop.recording.quality import QualityFlag
 from crowdteleop.vocab import Outcome, ReviewDecision
 
@@ -80,7 +80,10 @@ class DecidedView(BaseModel):
     decision: ReviewDecisionView = Field(description="the decision just recorded")
 
 
-class ConflictBody(ErrorBody):
-    """409: decided by someone else meanwhile; the episode as it stands now."""
+class ConflictBody(BaseModel):
+    """409: decided by someone else meanwhile; the episode as it stands now (the error body
+    of every endpoint, `schemas.ErrorBody`, with the episode)."""
 
+    error: str = Field(description="conflict")
+    message: str
     episode: ReviewEpisodeDetail

@@ -6,6 +6,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from crowdteleop.coord.api.review_schemas import DecidedView, ReviewEpisodeDetail, ReviewPageView
 from crowdteleop.recording.metadata import RegionName, RoundTripMs
 from crowdteleop.recording.quality import EpisodeMetrics, QualityFlag
 from crowdteleop.teleop.messages import IceServer, IceTransportPolicy
@@ -369,8 +370,14 @@ class BlockRequest(Strict):
     )
 
 
-# The answers the worker's pages check before acting on them, by name (served at /views.json).
-PAGE_VIEWS: dict[str, type[BaseModel]] = {"SessionView": SessionView, "CampaignView": CampaignView}
+# The answers the pages check before acting on them, by name (served at /views.json).
+PAGE_VIEWS: dict[str, type[BaseModel]] = {
+    "SessionView": SessionView,
+    "CampaignView": CampaignView,
+    "ReviewPageView": ReviewPageView,
+    "ReviewEpisodeDetail": ReviewEpisodeDetail,
+    "DecidedView": DecidedView,
+}
 
 
 def page_views_schema() -> dict[str, Any]:

@@ -8,6 +8,9 @@ import { compile } from "./schema.js";
 const CHECKED = [
   [/^\/api\/sessions(\/[^/]+(\/heartbeat)?)?$/, "SessionView"],
   [/^\/api\/campaigns\/[^/]+$/, "CampaignView"],
+  [/^\/api\/review\/episodes$/, "ReviewPageView"],
+  [/^\/api\/review\/episodes\/[^/]+$/, "ReviewEpisodeDetail"],
+  [/^\/api\/review\/episodes\/[^/]+\/(decision|undo)$/, "DecidedView"],
 ];
 let views = null;  // name -> validator, once /views.json is loaded
 

@@ -2,7 +2,10 @@
 // the episode (rendered from its recorded states by the coordinator), seekable, at 1x to 4x;
 // accept (a), reject with a reason (r), undo (u), next and previous (j, k). Each decision is
 // made against the decision count this page saw, so a reviewer who was quicker is reported
-// ("decided by bob meanwhile") instead of overwritten.
+// ("decided by bob meanwhile") instead of overwritten. Answers are checked against the served
+// JSON Schema of their views (api.js).
+
+import { viewProblems } from "./api.js";
 
 const $ = (id) => document.getElementById(id);
 const PAGE = 48;
@@ -24,6 +27,10 @@ async function request(path, { method = "GET", body } = {}) {
   let payload = null;
   try { payload = await response.json(); } catch { payload = null; }
   if (!response.ok) throw new RequestError(response.status, payload);
+  // Checked against the served JSON Schema (/views.json): a page and a server that drifted
+  // apart say so instead of acting on what they misread.
+  const problems = await viewProblems(path, payload);
+  if (problems.length) throw new RequestError(response.status, { message: problems.slice(0, 3).join("; ") });
   return payload;
 }
 
