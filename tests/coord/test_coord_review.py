@@ -457,3 +457,42 @@ def test_an_automatic_accept_of_a_reported_episode_releases_the_held_code(tmp_pa
     ]
     stored = current_review(tmp_path / "e1.hdf5")
     assert stored is not None and stored.reviewer == "auto"
+
+
+def test_one_render_per_episode_at_a_time_and_a_failure_is_not_retried_at_once(
+    tmp_path, monkeypatch
+):
+    from crowdteleop.coord.service import review_video
+
+    renders: list[Path] = []
+
+    async def replay(source: Path, output: Path) -> None:
+        renders.append(source)
+        await asyncio.sleep(0.05)
+        if source.name == "broken.hdf5":
+            raise review_video.RenderError("the replay tool failed (1): no states")
+        output.write_bytes(b"an mp4")
+
+    monkeypatch.setattr(review_video, "replay", replay)
+    for name in ("good.hdf5", "broken.hdf5"):
+        (tmp_path / name).write_bytes(b"")
+    videos = review_video.EpisodeVideos(coord_config(tmp_path))
+    good = Episode(episode_id="good", uri=(tmp_path / "good.hdf5").as_uri())
+    broken = Episode(episode_id="broken", uri=(tmp_path / "broken.hdf5").as_uri())
+
+    async def scenario() -> list[Any]:
+        paths = await asyncio.gather(*(videos.video(good) for _ in range(3)))
+        failures = await asyncio.gather(
+            *(videos.video(broken) for _ in range(2)), return_exceptions=True
+        )
+        return [
+            *paths,
+            *failures,
+            *await asyncio.gather(videos.video(broken), return_exceptions=True),
+        ]
+
+    results = _run(scenario())
+    assert results[0] == results[1] == results[2] == videos.cache / "good.mp4"
+    assert all(isinstance(r, review_video.RenderError) for r in results[3:]), results
+    assert "no states" in str(results[-1])
+    assert [path.name for path in renders] == ["good.hdf5", "broken.hdf5"], "once each"

@@ -27,6 +27,7 @@ RENDER_TIMEOUT_S = 300.0
 WIDTH, HEIGHT = 320, 240
 THUMBNAILS_AT_ONCE = 1  # background renders for thumbnails; a video asked for waits for none
 LINK_LIFETIME_S = 3600.0
+RETRY_AFTER_S = 60.0  # a failed render is told again, not retried, for this long
 
 
 class RenderError(Exception):
@@ -59,17 +60,33 @@ class EpisodeVideos:
     def __init__(self, config: CoordConfig) -> None:
         self.cache = config.data_dir / "review" / "videos"
         self._storage = storage_config(config)
-        self._locks: dict[str, asyncio.Lock] = {}
+        self._locks: dict[str, tuple[asyncio.Lock, int]] = {}  # id -> (lock, coroutines using it)
+        self._failed: dict[str, tuple[float, str]] = {}  # id -> (when, why): not retried at once
         self._thumbnails = asyncio.Semaphore(THUMBNAILS_AT_ONCE)
 
     async def video(self, episode: Episode) -> Path:
         """The episode's MP4, rendered once."""
         target = self.cache / f"{episode.episode_id}.mp4"
-        lock = self._locks.setdefault(episode.episode_id, asyncio.Lock())
-        async with lock:
-            if not target.is_file():
-                await self._render(episode, target)
+        self._raise_recent_failure(episode.episode_id)
+        lock, users = self._locks.get(episode.episode_id, (asyncio.Lock(), 0))
+        self._locks[episode.episode_id] = (lock, users + 1)
+        try:
+            async with lock:
+                if not target.is_file():
+                    self._raise_recent_failure(episode.episode_id)  # while this one waited
+                    await self._render(episode, target)
+        finally:
+            lock, users = self._locks[episode.episode_id]
+            if users == 1:  # the last one asking: forget the lock
+                del self._locks[episode.episode_id]
+            else:
+                self._locks[episode.episode_id] = (lock, users - 1)
         return target
+
+    def _raise_recent_failure(self, episode_id: str) -> None:
+        failed = self._failed.get(episode_id)
+        if failed is not None and time.monotonic() - failed[0] < RETRY_AFTER_S:
+            raise RenderError(failed[1])
 
     async def thumbnail(self, episode: Episode) -> Path:
         """The first frame as a JPEG, the video rendered first if needed (one thumbnail
@@ -84,6 +101,13 @@ class EpisodeVideos:
         return target
 
     async def _render(self, episode: Episode, target: Path) -> None:
+        try:
+            await self._render_once(episode, target)
+        except RenderError as error:
+            self._failed[episode.episode_id] = (time.monotonic(), str(error))
+            raise
+
+    async def _render_once(self, episode: Episode, target: Path) -> None:
         self.cache.mkdir(parents=True, exist_ok=True)
         source = local_path(episode.uri)
         downloaded = None
