@@ -43,7 +43,8 @@ bench: $(STAMP)
 screenshots: $(STAMP)
 	CROWDTELEOP_SCREENSHOTS=docs/screenshots $(PY) -m pytest -q tests/e2e/test_web_e2e.py tests/e2e/test_phone_xr.py \
 		tests/e2e/test_phone_camera.py tests/e2e/test_practice_page.py tests/e2e/test_vr_mode.py \
-		tests/e2e/test_phone_layouts.py
+		tests/e2e/test_phone_layouts.py tests/e2e/test_admin_charts.py tests/e2e/test_workers_page.py \
+		tests/e2e/test_review_page.py
 
 system-deps:
 	bash scripts/system-deps.sh test
