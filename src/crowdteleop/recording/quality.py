@@ -70,7 +70,12 @@ class EpisodeMetrics(BaseModel):
     longest_pause_stage: str | None = Field(
         None, description="the task stage halfway through the longest pause (e.g. 'grasp')"
     )
-    path_length_m: float | None = Field(None, description="the distance the hand travelled (m)")
+    path_length_m: float | None = Field(
+        None,
+        description="the distance the hand travelled (m), its positions averaged over 0.2 s: an "
+        "arm under OSC holding still near an object trembles a few millimetres at 10 Hz, which "
+        "over a 10 s pause would add a metre",
+    )
     path_ratio: float | None = Field(
         None,
         description="path length over the straight lines through the hand's waypoints: its "
