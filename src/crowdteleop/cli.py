@@ -269,28 +269,41 @@ def bot(
     if not admin_token:
         console.print("[red]error:[/red] the bot needs --admin-token (it reads object poses)")
         raise typer.Exit(2)
-    if coordinator is not None:
-        crowd_skills = _skill_list(skills) if skills is not None else (skill,) if skill else ()
-        crowd_faults = _fault_list(faults) if faults is not None else (fault,) if fault else ()
-        _crowd(
-            coordinator,
-            admin_token,
-            count,
-            campaign,
-            task,
-            phone_every,
-            timeout,
-            json_out,
-            crowd_skills,
-            crowd_faults,
-        )
+    if coordinator is None:
+        if skills is not None or faults is not None:
+            console.print(
+                "[red]error:[/red] --skills and --faults are for a crowd (--coordinator); use "
+                "--skill and --fault"
+            )
+            raise typer.Exit(2)
+        _one_bot(url, token, admin_token, episodes, timeout, skill, fault)
         return
-    if skills is not None or faults is not None:
-        console.print(
-            "[red]error:[/red] --skills and --faults are for a crowd (--coordinator); use "
-            "--skill and --fault"
-        )
-        raise typer.Exit(2)
+    crowd_skills = _skill_list(skills) if skills is not None else (skill,) if skill else ()
+    crowd_faults = _fault_list(faults) if faults is not None else (fault,) if fault else ()
+    _crowd(
+        coordinator,
+        admin_token,
+        count,
+        campaign,
+        task,
+        phone_every,
+        timeout,
+        json_out,
+        crowd_skills,
+        crowd_faults,
+    )
+
+
+def _one_bot(
+    url: str,
+    token: str,
+    admin_token: str,
+    episodes: int,
+    timeout: float,
+    skill: SkillName | None,
+    fault: InjectedFault | None,
+) -> None:
+    """One bot driving the teleop server at `url`, and what became of its episodes."""
     from crowdteleop.client.bot import main as run_bot
 
     try:
