@@ -84,7 +84,6 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         state.config, state.metrics, state.coordinator = config, metrics, coordinator
         state.workers = Workers(store, config, metrics)
         state.pairing = Pairing(store, config)
-        state.episodes = Episodes(store, config, metrics, coordinator)
         state.signaling = signaling
         state.guards = Guards.of(config, metrics, store)
         state.history = History(store)
@@ -92,6 +91,7 @@ def create_app(config: CoordConfig, launcher: Launcher | None = None) -> FastAPI
         state.completion = Completion(store, config, coordinator)
         state.worker_records = WorkerRecords(store, coordinator, metrics)
         state.reviews = Reviews(store, config, metrics, on_decided=state.completion.on_decided)
+        state.episodes = Episodes(store, config, metrics, state.completion, state.reviews)
         state.review_videos, state.review_links = (
             EpisodeVideos(config),
             MediaLinks(config.admin_token),

@@ -10,7 +10,6 @@ from crowdteleop.coord.db.store import Store
 from crowdteleop.coord.db.tables import Episode, Session
 from crowdteleop.coord.service.completion import Completion
 from crowdteleop.coord.service.config import CoordConfig
-from crowdteleop.coord.service.coordinator import Coordinator
 from crowdteleop.coord.service.feedback import worker_feedback
 from crowdteleop.coord.service.metrics import CoordMetrics
 from crowdteleop.coord.service.review import Reviews
@@ -37,12 +36,18 @@ class Recorded:
 
 class Episodes:
     def __init__(
-        self, store: Store, config: CoordConfig, metrics: CoordMetrics, coordinator: Coordinator
+        self,
+        store: Store,
+        config: CoordConfig,
+        metrics: CoordMetrics,
+        completion: Completion,
+        reviews: Reviews,
     ) -> None:
+        """`completion` and `reviews` are the app's: a report's automatic decision and its
+        completion check go through the same services a reviewer's decision does."""
         self._episodes, self._sessions = store.episodes, store.sessions
-        self._config, self._metrics, self._coordinator = config, metrics, coordinator
-        self._completion = Completion(store, config, coordinator)
-        self._reviews = Reviews(store, config, metrics)  # its automatic decisions by score
+        self._config, self._metrics = config, metrics
+        self._completion, self._reviews = completion, reviews
 
     async def reporting_session(self, report_token: str) -> Session | None:
         """The session whose teleop server holds `report_token`."""
