@@ -2,11 +2,11 @@
 bots of three skills join as workers do (study link, queue, WebRTC, real-time 20 Hz), each
 demonstration is measured by its teleop server and scored by the coordinator against the
 campaign's successful demonstrations so far, exactly as a crowd's would be. Then bots that
-make one fault in every demonstration (`--faults idle,detour,drop`) check the flags name it.
+make one fault in every demonstration (`--faults idle,detour,drop,press`) check the flags name it.
 
     .venv/bin/python benchmarks/quality_campaign.py --task lift --bots-per-level 3 --demos 10
     .venv/bin/python benchmarks/quality_campaign.py --task pick-place-can --bots-per-level 3 \
-        --demos 10 --faults idle,detour,drop
+        --demos 10 --faults idle,detour,drop,press
 
 Reports, per level: demonstrations, successes, median score as stored, the flags raised; the
 ROC AUC of the stored score between levels (successful demonstrations: what a dataset holds),
@@ -38,7 +38,12 @@ app = typer.Typer(add_completion=False)
 console = Console(soft_wrap=True)
 ADMIN = secrets.token_urlsafe(32)
 LEVELS = ("expert", "intermediate", "novice")
-FAULT_FLAG = {"idle": "longest_pause_s", "detour": "path_ratio", "drop": "setbacks"}
+FAULT_FLAG = {
+    "idle": "longest_pause_s",
+    "detour": "path_ratio",
+    "drop": "setbacks",
+    "press": "table_contact_s",
+}
 
 
 def roc_auc(positives: list[float], negatives: list[float]) -> float | None:

@@ -114,7 +114,7 @@ def test_an_unknown_fault_is_a_clear_error_and_faults_are_for_a_crowd():
         "bot", "--admin-token", "a", "--coordinator", "http://127.0.0.1:9", "--faults", "idle,x"
     )
     assert crowd.returncode == 2 and "unknown fault(s) 'x'" in crowd.stdout
-    assert "idle, detour, drop" in crowd.stdout
+    assert "idle, detour, drop, press" in crowd.stdout
     alone = crowdteleop("bot", "--admin-token", "a", "--faults", "idle")
     assert alone.returncode == 2 and "--faults are for a crowd" in alone.stdout
 

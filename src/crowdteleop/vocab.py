@@ -39,11 +39,17 @@ ReviewDecision = Literal["accepted", "rejected"]
 has decided, or whose decision was undone, has none."""
 REVIEW_DECISIONS: tuple[ReviewDecision, ...] = get_args(ReviewDecision)
 
-InjectedFault = Literal["idle", "detour", "drop"]
+InjectedFault = Literal["idle", "detour", "drop", "press"]
 """A fault a synthetic worker can be told to make in each demonstration, to test that the
 quality flags catch it (`control.scripted.skills.FAULTS`): a 10 s idle before the grasp, a
-detour on the way to the object, the object dropped while carried."""
+detour on the way to the object, the object dropped while carried, the hand pushed into the
+table on its way down to the grasp."""
 INJECTED_FAULTS: tuple[InjectedFault, ...] = get_args(InjectedFault)
+
+TABLE_CONTACT = "table"
+"""The object a contact event names when the arm touches the table (or the bins) the task's
+objects stand on: the phone buzzes, and the quality metrics count the touches (pressing into
+the table strains the arm and shoves the objects; a policy learns to scrape)."""
 
 ControllerName = Literal["ik-velocity", "osc"]
 """The control law turning a desired end-effector pose into simulation actions."""

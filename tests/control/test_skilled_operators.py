@@ -174,7 +174,11 @@ def test_a_seed_and_a_style_drive_one_exact_episode(rig):
 
 @pytest.mark.parametrize(
     ("fault", "metric", "words"),
-    [("idle", "longest_pause_s", "idle 10 s"), ("detour", "path_ratio", "a detour")],
+    [
+        ("idle", "longest_pause_s", "idle 10 s"),
+        ("detour", "path_ratio", "a detour"),
+        ("press", "table_contact_s", "pressed into the table: once"),
+    ],
 )
 def test_an_injected_fault_is_flagged_by_its_name_and_nothing_else(
     rig, tmp_path, fault, metric, words
@@ -189,6 +193,17 @@ def test_an_injected_fault_is_flagged_by_its_name_and_nothing_else(
         flags = _flags(faulty)
         assert [flag.metric for flag in flags] == [metric]
         assert words in flags[0].reason
+
+
+def test_the_table_is_touched_only_by_an_operator_told_to_press_into_it(rig, tmp_path):
+    """Every step's contacts are recorded with the table among them, so the touch is counted
+    where it happened; a clean grasp of the cube never brushes the table."""
+    clean = read_metadata(record(rig, tmp_path, "clean", 3, style_for("novice")).path)
+    pressed = read_metadata(record(rig, tmp_path, "press", 3, style_for("novice", "press")).path)
+    assert "table" in clean["contact_objects"]
+    assert (clean["quality"]["table_contacts"], clean["quality"]["table_contact_s"]) == (0, 0.0)
+    assert pressed["quality"]["table_contacts"] == 1
+    assert pressed["quality"]["table_contact_s"] >= 0.3
 
 
 def test_an_injected_drop_happens_once_on_the_first_carrying_leg(rig, tmp_path):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,9 +17,11 @@ from crowdteleop.recording.quality import (
     better_than,
     clutch_reanchors,
     episode_metrics,
+    motion_of,
     quality_flags,
     quality_score,
     setback_metrics,
+    table_metrics,
 )
 
 HZ = 20.0
@@ -166,6 +169,31 @@ def test_an_episode_without_labels_has_no_hand_metrics():
     assert metrics.clutch_reanchors == 0, "the commands still say what they can"
 
 
+def test_table_touches_count_once_however_a_sliding_finger_flickers():
+    touching = [False] * 10 + [True, True, False, True] + [False] * 10 + [True] * 6
+    assert table_metrics(touching, 1 / HZ) == {"table_contacts": 2, "table_contact_s": 0.45}
+    assert table_metrics([False] * 20, 1 / HZ) == {"table_contacts": 0, "table_contact_s": 0.0}
+
+
+def recorded_touching_the_table_once() -> SimpleNamespace:
+    """An episode's arrays as the metrics read them: one of three steps touching the table."""
+    table = {"robot_part": "finger", "object": "table", "intensity": 0.4}
+    return SimpleNamespace(
+        labels=None,
+        commands=[{"engaged": True}] * 3,
+        states=np.zeros((3, 3)),
+        contacts=[[], [table], []],
+    )
+
+
+def test_table_metrics_come_only_from_recordings_whose_contacts_could_name_the_table():
+    episode = recorded_touching_the_table_once()
+    named = motion_of(episode, {"contact_objects": ["cube", "table"]})
+    assert episode_metrics(named, {}).table_contacts == 1
+    older = motion_of(episode, {})  # recorded before the table's contacts were
+    assert episode_metrics(older, {}).table_contacts is None
+
+
 def test_a_drop_is_a_setback_and_a_flickering_stage_test_is_not():
     dropped = ["reach"] * 40 + ["grasped"] * 30 + ["reach"] * 20 + ["grasped"] * 30 + ["done"] * 5
     assert setback_metrics(dropped, 1 / HZ) == {
@@ -184,6 +212,8 @@ def test_flags_say_why_in_words_and_only_past_the_campaigns_thresholds():
         path_ratio=2.4,
         gripper_changes=5,
         gripper_chatter=4,
+        table_contacts=2,
+        table_contact_s=0.8,
         video_stalls=0,
     )
     reasons = [f.reason for f in quality_flags(metrics, QualityThresholds())]
@@ -191,8 +221,11 @@ def test_flags_say_why_in_words_and_only_past_the_campaigns_thresholds():
         "idle 11 s in the 'grasped' stage",
         "a detour: the hand travelled 2.4 times the straight path",
         "a hesitant grasp: the gripper changed 5 times, 4 of them within 1 s of the last",
+        "pressed into the table: 2 times, 0.8 s in all",
     ]
-    lenient = QualityThresholds(longest_pause_s=20, path_ratio=3, gripper_chatter=5)
+    lenient = QualityThresholds(
+        longest_pause_s=20, path_ratio=3, gripper_chatter=5, table_contact_s=1.0
+    )
     assert quality_flags(metrics, lenient) == []
 
 

@@ -9,6 +9,7 @@ import pytest
 from crowdteleop.sim import SimConfig, make_simulation
 from crowdteleop.sim.interface import Simulation
 from crowdteleop.tasks import task_names
+from crowdteleop.vocab import TABLE_CONTACT
 from tests.fixtures.motion import arm_motion
 
 ALL_TASKS = task_names()
@@ -83,3 +84,14 @@ def test_reports_progress_poses_contacts_and_its_model(sim):
     assert 0.0 <= robot.gripper_closed_fraction <= 1.0
     model = mujoco.MjModel.from_xml_string(sim.mjcf_xml())
     assert 1 + model.nq + model.nv == sim.get_state().shape[0]
+
+
+def test_its_contacts_can_name_the_table_and_the_arm_at_rest_stands_clear_of_it(sim):
+    """The table (on pick-place, the bins) is among what contacts name, so touches of it are
+    recorded and counted; a robot whose base touched it would count a touch every step."""
+    assert TABLE_CONTACT in sim.contact_objects
+    assert set(sim.object_poses()) & set(sim.contact_objects) - {TABLE_CONTACT}
+    sim.reset(seed=4)
+    for _ in range(5):
+        result = sim.step(np.zeros(sim.action_spec.size))
+        assert [c for c in result.contacts if c.object == TABLE_CONTACT] == []

@@ -21,7 +21,7 @@ from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.teleoperator import Teleoperator, TeleopStep
 from crowdteleop.recording.episode_file import CommandRecord, StepLabels, StepRecord
-from crowdteleop.recording.metadata import EpisodeMetadata, arm_joints_of, episode_metadata
+from crowdteleop.recording.metadata import EpisodeMetadata, episode_metadata, simulation_facts
 from crowdteleop.recording.versions import runtime_versions
 from crowdteleop.recording.wal import EpisodeRecorder
 from crowdteleop.sim.interface import Simulation
@@ -71,7 +71,7 @@ def scripted_rig(
     try:
         metadata = episode_metadata(
             config, control, camera="frontview", model_xml=sim.mjcf_xml(), reset_seed=0
-        ).model_copy(update={"arm_joints": arm_joints_of(sim)})
+        ).model_copy(update=simulation_facts(sim))
         yield ScriptedRig(sim, Teleoperator(sim, control), control, metadata)
     finally:
         sim.close()

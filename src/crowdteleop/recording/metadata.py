@@ -72,6 +72,13 @@ class KnowsKinematics(Protocol):
     def kinematics(self) -> ArmKinematics: ...
 
 
+class RecordedSimulation(KnowsKinematics, Protocol):
+    """A simulation, as far as the episode metadata records facts of it."""
+
+    @property
+    def contact_objects(self) -> tuple[str, ...]: ...
+
+
 def arm_joints_of(sim: KnowsKinematics) -> ArmJoints | None:
     """The simulation's arm joints, as the episode metadata records them (None: a backend
     that does not say where they are in its state)."""
@@ -79,6 +86,12 @@ def arm_joints_of(sim: KnowsKinematics) -> ArmJoints | None:
     if not kinematics.state_index:
         return None
     return ArmJoints.of(kinematics.state_index, kinematics.joint_position_limits)
+
+
+def simulation_facts(sim: RecordedSimulation) -> dict[str, Any]:
+    """What an episode's metadata records of the simulation it ran in (an update for
+    `EpisodeMetadata.model_copy`): where its arm joints are, what its contacts can name."""
+    return {"arm_joints": arm_joints_of(sim), "contact_objects": list(sim.contact_objects)}
 
 
 class EpisodeMetadata(BaseModel):
@@ -107,6 +120,11 @@ class EpisodeMetadata(BaseModel):
     )
     arm_joints: ArmJoints | None = Field(
         None, description="the arm's joints in the states (recordings since issue 29)"
+    )
+    contact_objects: list[str] | None = Field(
+        None,
+        description="what the steps' contacts can name as touched: the task's objects and "
+        "'table' (recordings since the table's were recorded; before, a table touch was not)",
     )
 
     def to_record(self) -> dict[str, Any]:

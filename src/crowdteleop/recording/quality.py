@@ -22,6 +22,7 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from crowdteleop.recording.metadata import DEFAULT_CONTROL_HZ
+from crowdteleop.vocab import TABLE_CONTACT
 
 IDLE_SPEED_M_S = 0.02  # the device slower than this, the gripper unchanged: nothing is done
 SPEED_WINDOW_S = 1.0  # ... over this window, in which a hand's tremor cancels out
@@ -37,6 +38,7 @@ SETBACK_MIN_S = 0.5  # a stage gone back to for less is the stage test flickerin
 SPARC_CUTOFF_HZ = 10.0  # spectral arc length over speeds below this (Balasubramanian 2015)
 SPARC_AMPLITUDE_THRESHOLD = 0.05
 SPARC_PADDING = 4  # zero padding, as powers of two past the signal's length
+TOUCH_GAP_S = 0.25  # a table contact broken for less is the same touch (a finger sliding on it)
 
 Floats = npt.NDArray[np.float64]
 
@@ -117,6 +119,15 @@ class EpisodeMetrics(BaseModel):
         description=f"gripper changes within {CHATTER_WINDOW_S} s of the previous one "
         "(count): hesitant grasps that policies copy",
     )
+    table_contacts: int | None = Field(
+        None,
+        description="times the arm touched the table (count; contacts less than "
+        f"{TOUCH_GAP_S} s apart are one touch): pressing into the table strains the arm and "
+        "shoves the objects, and a policy learns to scrape",
+    )
+    table_contact_s: float | None = Field(
+        None, description="seconds the arm spent touching the table (s)"
+    )
     joint_limit_fraction: float | None = Field(
         None,
         description=f"share of steps with an arm joint within {JOINT_LIMIT_MARGIN:.0%} of its "
@@ -175,12 +186,16 @@ class RecordedEpisode(Protocol):
     @property
     def states(self) -> Floats: ...
 
+    @property
+    def contacts(self) -> Sequence[Sequence[Mapping[str, Any]]]: ...
+
 
 @dataclass(frozen=True)
 class MotionInputs:
     """What the metrics read of an episode: per step (N of them, `dt_s` apart) the hand's
     pose and stage, the commands' clutch, gripper and device position, and the state; and the
-    arm's joints (where in the state, their limits) when the recording says."""
+    arm's joints (where in the state, their limits) and whether the arm touched the table,
+    when the recording says."""
 
     dt_s: float
     hand_pose: Floats | None  # (N, 7) x y z qx qy qz qw, or None without labels
@@ -191,6 +206,7 @@ class MotionInputs:
     command_positions: Floats | None = None  # (N, 3) the device's, metres
     arm_state_index: Sequence[int] | None = None
     arm_limits_rad: Floats | None = None  # (J, 2)
+    on_table: Sequence[bool] | None = None  # per step: the arm touching the table
 
 
 def episode_metrics(
@@ -203,6 +219,7 @@ def episode_metrics(
         **_hand_metrics(motion),
         clutch_reanchors=clutch_reanchors(motion.engaged) if motion.engaged else None,
         **_gripper_metrics(motion),
+        **table_metrics(motion.on_table, motion.dt_s),
         joint_limit_fraction=joint_limit_fraction(motion),
         resets_before=resets_before,
         **network_metrics(telemetry),
@@ -414,6 +431,17 @@ def clutch_reanchors(engaged: Sequence[bool]) -> int:
     return max(0, takes - 1)
 
 
+def table_metrics(on_table: Sequence[bool] | None, dt_s: float) -> dict[str, Any]:
+    """Touches of the table (gaps shorter than `TOUCH_GAP_S` joined) and the time in contact."""
+    if on_table is None or not len(on_table):
+        return {}
+    touching = np.asarray(on_table, dtype=bool)
+    steps = np.flatnonzero(touching)
+    gaps = np.diff(steps) - 1  # steps without contact between two with it
+    touches = int(len(steps) > 0) + int(np.count_nonzero(gaps * dt_s >= TOUCH_GAP_S))
+    return {"table_contacts": touches, "table_contact_s": round(len(steps) * dt_s, 3)}
+
+
 def joint_limit_fraction(motion: MotionInputs) -> float | None:
     if motion.arm_state_index is None or motion.arm_limits_rad is None:
         return None
@@ -456,6 +484,7 @@ def motion_of(episode: RecordedEpisode, metadata: Mapping[str, Any]) -> MotionIn
         command_positions=_command_positions(commands),
         arm_state_index=arm.get("state_index"),
         arm_limits_rad=np.asarray(arm["limits_rad"], dtype=float) if arm else None,
+        on_table=_on_table(episode.contacts, metadata),
     )
 
 
@@ -482,6 +511,16 @@ def _command_positions(commands: Sequence[Mapping[str, Any]]) -> Floats | None:
     return positions if positions.shape == (len(commands), 3) else None
 
 
+def _on_table(
+    contacts: Sequence[Sequence[Mapping[str, Any]]], metadata: Mapping[str, Any]
+) -> list[bool] | None:
+    """Per step, any contact with the table; None for a recording whose contacts could not
+    name it (recorded before the table's were, or a scene without one)."""
+    if TABLE_CONTACT not in (metadata.get("contact_objects") or ()):
+        return None
+    return [any(c.get("object") == TABLE_CONTACT for c in step) for step in contacts]
+
+
 def _has(commands: Sequence[Mapping[str, Any]], key: str) -> bool:
     return bool(commands) and all(key in c for c in commands)
 
@@ -505,6 +544,7 @@ class QualityThresholds(BaseModel):
     gripper_chatter: int = Field(2, ge=1, description="this many quick gripper reversals")
     setbacks: int = Field(1, ge=1, description="this many returns to an earlier stage")
     clutch_reanchors: int = Field(8, ge=1, description="this many clutch re-anchors")
+    table_contact_s: float = Field(0.3, gt=0, description="longer than this touching the table")
     joint_limit_fraction: float = Field(0.25, gt=0, le=1, description="this share near a limit")
     latency_p95_ms: float = Field(400.0, gt=0, description="a slower link than this")
     video_stalls: int = Field(1, ge=1, description="this many video stalls")
@@ -527,11 +567,17 @@ def _flag_reason(metrics: EpisodeMetrics, name: str, value: float) -> str:
         f"times, {value:.0f} of them within {CHATTER_WINDOW_S:.0f} s of the last",
         "setbacks": f"went back a stage ({metrics.first_setback}): dropped or lost the object",
         "clutch_reanchors": f"let go of the clutch and took it again {value:.0f} times",
+        "table_contact_s": f"pressed into the table: {_times(metrics.table_contacts)}, "
+        f"{value:.1f} s in all",
         "joint_limit_fraction": f"{value:.0%} of the time with a joint near its limit",
         "latency_p95_ms": f"a slow link: 1 frame in 20 took over {value:.0f} ms",
         "video_stalls": f"the video stalled {value:.0f} times",
     }
     return reasons[name]
+
+
+def _times(count: int | None) -> str:
+    return "once" if count == 1 else f"{count} times"
 
 
 def quality_flags(metrics: EpisodeMetrics, thresholds: QualityThresholds) -> list[QualityFlag]:

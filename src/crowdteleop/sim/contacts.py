@@ -1,4 +1,5 @@
-"""Contact events for haptics: which robot part touches which object, and how hard."""
+"""Contact events for haptics and the quality metrics: which robot part touches which object
+(or the table), and how hard."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 from crowdteleop.sim.types import ContactEvent
+from crowdteleop.vocab import TABLE_CONTACT
 
 # A normal force of this many newtons or more buzzes the phone at full intensity.
 FULL_INTENSITY_NEWTONS = 20.0
@@ -24,6 +26,20 @@ def body_subtree_geoms(model: mujoco.MjModel, root_body_ids: Iterable[int]) -> s
             body_id != 0 and in_subtree[model.body_parentid[body_id]]
         )
     return {g for g in range(model.ngeom) if in_subtree[model.geom_bodyid[g]]}
+
+
+def table_geoms(
+    model: mujoco.MjModel, robot_geoms: Iterable[int], object_geoms: Iterable[int]
+) -> dict[int, str]:
+    """The table (or bins) the objects stand on, each geom named `TABLE_CONTACT`: every geom
+    that can collide on a body fixed to the world, other than the world's own (the floor) and
+    the robot's and the objects'. Found by structure, not by name: robosuite's arenas name
+    their tables and bins each their own way."""
+    bodies = model.geom_bodyid
+    fixed = (model.body_weldid[bodies] == 0) & (bodies != 0)
+    collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+    taken = set(robot_geoms) | set(object_geoms)
+    return {int(g): TABLE_CONTACT for g in np.flatnonzero(fixed & collides) if g not in taken}
 
 
 class ContactReader:
@@ -49,6 +65,11 @@ class ContactReader:
         for geom, obj in object_geoms.items():
             self._object_of[geom] = self._objects.index(obj)
         self._force = np.zeros(6)
+
+    @property
+    def objects(self) -> tuple[str, ...]:
+        """The names its events can give the touched side."""
+        return tuple(self._objects)
 
     def read(self, data: mujoco.MjData) -> list[ContactEvent]:
         if not data.ncon:

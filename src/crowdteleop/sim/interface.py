@@ -31,6 +31,7 @@ class Simulation(Protocol):
     config: SimConfig
     action_spec: ActionSpec
     cameras: tuple[str, ...]
+    contact_objects: tuple[str, ...]  # what `contacts` can name: the objects, `TABLE_CONTACT`
 
     @property
     def control_dt(self) -> float:
@@ -74,7 +75,6 @@ class Simulation(Protocol):
     def success(self) -> bool: ...
 
     def contacts(self) -> list[ContactEvent]: ...
-
     def progress(self) -> TaskProgress: ...
 
     def robot_state(self) -> RobotState: ...

@@ -22,7 +22,7 @@ from av import VideoFrame
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.teleoperator import Teleoperator
 from crowdteleop.recording.episode_file import CommandRecord, RecordingError, StepLabels
-from crowdteleop.recording.metadata import arm_joints_of, episode_metadata
+from crowdteleop.recording.metadata import episode_metadata, simulation_facts
 from crowdteleop.recording.storage import EpisodeStorage, disk_is_full
 from crowdteleop.sim.factory import make_simulation
 from crowdteleop.sim.interface import Simulation
@@ -161,7 +161,7 @@ class TeleopSession:
             session_id=self.config.session_id,
             worker_id=self.config.worker_id,
             region=self.config.region,
-        ).model_copy(update={"arm_joints": arm_joints_of(sim)})
+        ).model_copy(update=simulation_facts(sim))
         self.tracker = EpisodeTracker(
             control_dt=sim.control_dt,
             time_limit_s=self.config.episode_time_limit_s,

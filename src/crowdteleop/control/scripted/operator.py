@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.config import MappingConfig
 from crowdteleop.control.mapping import ClutchMapper
-from crowdteleop.control.scripted.plans import ScriptedScene, plan_for
+from crowdteleop.control.scripted.plans import DESCEND, ScriptedScene, plan_for
 from crowdteleop.control.scripted.waypoints import Waypoint
 from crowdteleop.sim.types import Pose
 
@@ -87,6 +87,13 @@ class OperatorStyle(BaseModel):
     drop_once: bool = Field(
         False, description="drop what it carries on the first carrying leg, whatever the odds"
     )
+    press_m: float = Field(
+        0.0,
+        ge=0,
+        le=0.2,
+        description="on the way down to the first grasp, the hand is pushed this far below "
+        "the grasp point (into the table), then comes back up to it",
+    )
     device_origin: tuple[float, float, float] = (0.1, -0.2, 1.2)  # where the phone starts
 
 
@@ -141,6 +148,7 @@ class ScriptedOperator:
             "idle": self.style.grasp_idle_s > 0,
             "detour": self.style.detour_m > 0,
             "drop": self.style.drop_once,
+            "press": self.style.press_m > 0,
         }
 
     @property
@@ -226,7 +234,7 @@ class ScriptedOperator:
             pause = self._rng.uniform(*self.style.hesitation_s)
         grasp = waypoint.gripper_closed and not self._gripper_closed
         self._leg = _Leg(waypoint, self._hand, pause_s=pause, wait_s=self._wait(grasp))
-        self._leg.aim = self._detour() or self._overshoot(waypoint)
+        self._leg.aim = self._detour() or self._press(waypoint) or self._overshoot(waypoint)
         if grasp:
             self._leg.chatter = self._chatter()
         elif waypoint.gripper_closed and (
@@ -267,6 +275,15 @@ class ScriptedOperator:
             return None
         offset = np.array([0.0, self.style.detour_m, 0.5 * self.style.detour_m])
         return Pose(self._hand.position + offset, self._hand.quaternion)
+
+    def _press(self, waypoint: Waypoint) -> Pose | None:
+        """The injected press's lowest point, below the descent to the first grasp (None once
+        made, or never)."""
+        if waypoint.label != DESCEND or not self._fault("press"):
+            return None
+        return Pose(
+            waypoint.pose.position - [0.0, 0.0, self.style.press_m], waypoint.pose.quaternion
+        )
 
     def _overshoot(self, waypoint: Waypoint) -> Pose | None:
         """Where to aim past `waypoint` along the leg (None: straight there), never below it."""

@@ -36,6 +36,7 @@ class ScriptedScene(Protocol):
 Plan = Callable[[ScriptedScene], Iterator[Waypoint]]
 
 HOVER_M = 0.10
+DESCEND = "descend"  # the label of the leg down to a grasp (an injected press happens there)
 DROP_NEAR_SIDE_M = 0.05
 
 
@@ -59,7 +60,7 @@ def _pick(
     yield Waypoint(at(above(), rotation), False, tolerance_m=0.02, label="hover")
     yield Waypoint(at(above(), rotation), False, tolerance_m=0.01, dwell_s=0.2, label="align")
     down = sim.object_poses()[grasp_frame].position + [0.0, 0.0, -grasp_depth]
-    yield Waypoint(at(down, rotation), False, tolerance_m=0.006, dwell_s=0.1, label="descend")
+    yield Waypoint(at(down, rotation), False, tolerance_m=0.006, dwell_s=0.1, label=DESCEND)
     yield Waypoint(at(down, rotation), True, tolerance_m=0.02, dwell_s=0.5, label="grasp")
 
 

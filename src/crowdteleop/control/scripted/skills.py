@@ -56,6 +56,7 @@ FAULTS: dict[InjectedFault, dict[str, float | bool]] = {
     "idle": {"grasp_idle_s": 10.0},  # flag longest_pause_s: "idle 10 s in the 'grasp' stage"
     "detour": {"detour_m": 0.4},  # flag path_ratio: "a detour: the hand travelled ..."
     "drop": {"drop_once": True},  # flag setbacks: "went back a stage (...)"
+    "press": {"press_m": 0.1},  # flag table_contact_s: "pressed into the table ..."
 }
 
 

@@ -19,7 +19,7 @@ from crowdteleop.errors import (
     UnknownRobotError,
 )
 from crowdteleop.sim.config import SimConfig
-from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms
+from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, table_geoms
 from crowdteleop.sim.declared import DeclaredChecks, generic_progress
 from crowdteleop.sim.mujoco_backend import scene
 from crowdteleop.sim.mujoco_backend.objects import MujocoScene, SceneObjects
@@ -93,6 +93,7 @@ class MujocoSimulation:
             np.append(np.full(n, speed), 1.0),
         )
         self._contacts = self._make_contact_reader()
+        self.contact_objects = self._contacts.objects
         self._closed = False
         self.reset()
 
@@ -277,4 +278,6 @@ class MujocoSimulation:
             geom: model.body(model.geom_bodyid[geom]).name
             for geom in body_subtree_geoms(model, [self._base_body_id])
         }
-        return ContactReader(model, robot_geoms, self._objects.contact_names(model))
+        objects = self._objects.contact_names(model)
+        table = table_geoms(model, robot_geoms, objects)
+        return ContactReader(model, robot_geoms, {**objects, **table})

@@ -17,7 +17,7 @@ from crowdteleop.errors import ConfigError, InvalidStateError, UnknownRobotError
 from crowdteleop.provenance.controllers import CompositeController, arm_controller
 from crowdteleop.sim import mjcf
 from crowdteleop.sim.config import SimConfig
-from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, touching
+from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, table_geoms, touching
 from crowdteleop.sim.fastrender import FastSceneRenderer
 from crowdteleop.sim.mujoco_data import flat_state, pose_from_matrix
 from crowdteleop.sim.robosuite_backend import fast_model, model_fixes, tasks
@@ -86,6 +86,7 @@ class RobosuiteSimulation:
         self._ee_site_id = self._model.site(self._ee_site).id
         self._base_body_id = self._model.body(self._robot.robot_model.root_body).id
         self._contacts = self._make_contact_reader()
+        self.contact_objects = self._contacts.objects
         self._grasped = self._make_grasp_test()
         self._init_gripper_geometry()
         self._stepper = self._make_stepper()
@@ -376,8 +377,10 @@ class RobosuiteSimulation:
             for prefix in prefixes:
                 name = name.removeprefix(prefix)
             robot_geoms[geom] = name
-        object_geoms = {}
-        for obj in tasks.active_objects(self._env):
-            for geom in body_subtree_geoms(model, [model.body(obj.root_body).id]):
-                object_geoms[geom] = obj.name
-        return ContactReader(model, robot_geoms, object_geoms)
+        object_geoms = {
+            geom: obj.name
+            for obj in tasks.active_objects(self._env)
+            for geom in body_subtree_geoms(model, [model.body(obj.root_body).id])
+        }
+        table = table_geoms(model, robot_geoms, object_geoms)
+        return ContactReader(model, robot_geoms, {**object_geoms, **table})
