@@ -202,9 +202,12 @@ def main(
 ) -> None:
     folder = out / task
     started = time.monotonic()
-    skills = ["--count", str(3 * bots_per_level), "--skills", ",".join(LEVELS)]
-    with console.status(f"{3 * bots_per_level} bots of three skills on {task} ..."):
-        workers, rows = campaign(folder / "skills", task, capacity, demos, skills, timeout_s)
+    workers: list[dict[str, Any]] = []
+    rows: list[dict[str, Any]] = []
+    if bots_per_level > 0:  # 0: the faults alone
+        skills = ["--count", str(3 * bots_per_level), "--skills", ",".join(LEVELS)]
+        with console.status(f"{3 * bots_per_level} bots of three skills on {task} ..."):
+            workers, rows = campaign(folder / "skills", task, capacity, demos, skills, timeout_s)
     fault_rows: list[dict[str, Any]] = []
     if faults:
         # a coordinator of its own: the crowd's bots are named bot-000..., and a worker who
