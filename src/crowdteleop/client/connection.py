@@ -58,6 +58,12 @@ class OfferRefusedError(ConnectionError):
         self.status, self.code = status, code
 
 
+class ConnectionLostError(ConnectionError):
+    """The peer connection failed (no answer to ICE consent checks for ~30 s: a network gone)
+    or was closed by the server: nothing more will arrive on it. A page says "reload to
+    reconnect"; a bot connects again."""
+
+
 @dataclass
 class ClientState:
     """Everything the server told this client, newest last."""
@@ -145,7 +151,13 @@ class TeleopClient:
         self._reported = 0
         self._tasks: list[asyncio.Task[Any]] = []
         self._changed = asyncio.Event()
+        self.pc.on("connectionstatechange", self._changed.set)  # waiters look again
         self.peer_id = ""
+
+    @property
+    def lost(self) -> bool:
+        """The connection failed or was closed (by either side)."""
+        return self.pc.connectionState in ("failed", "closed")
 
     # --- connecting -----------------------------------------------------------------------
 
@@ -199,9 +211,14 @@ class TeleopClient:
         await self.pc.close()
 
     async def wait_for(self, predicate: Callable[[ClientState], bool], timeout: float) -> None:
-        """Wait until `predicate(state)` holds; TimeoutError names what was awaited."""
+        """Wait until `predicate(state)` holds; TimeoutError names what was awaited, and
+        ConnectionLostError says when it never can."""
         deadline = time.monotonic() + timeout
         while not predicate(self.state):
+            if self.lost:
+                raise ConnectionLostError(
+                    f"the connection to the teleop server is {self.pc.connectionState}"
+                )
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise TimeoutError(f"timed out after {timeout} s waiting for the server")

@@ -15,7 +15,7 @@ import aiohttp
 import numpy as np
 
 from crowdteleop.client.bot import Bot
-from crowdteleop.client.connection import TeleopClient
+from crowdteleop.client.connection import ConnectionLostError, TeleopClient
 from crowdteleop.control.scripted.skills import style_for
 from crowdteleop.crowd.api import WorkerApi
 from crowdteleop.teleop.messages import OfferAnswer
@@ -79,6 +79,7 @@ class WorkerReport:
         return float(np.percentile(self.latency_ms, 95)) if self.latency_ms else None
 
 
+MAX_RECONNECTS = 5  # a worker whose robot or network fails more often than this gives up
 TOLD_CODES = {"not_saved", "recording_failed"}  # what a worker's page shows and a bot reports
 
 
@@ -98,8 +99,11 @@ async def _drive(
         try:
             await _one_robot(api, report, settings, index, joined_at)
             return
-        except _RobotReplacedError:
-            # As the page does: show the notice, wait for the new robot, connect again.
+        except (_RobotReplacedError, ConnectionLostError) as exc:
+            # As the page does: show the notice, wait for the new robot, connect again; or,
+            # the connection lost, as its worker does: reload.
+            if report.reconnects >= MAX_RECONNECTS:
+                raise ConnectionError(f"gave up after {MAX_RECONNECTS} reconnects") from exc
             report.reconnects += 1
             await api.until_ready(settings.queue_timeout_s)
 
@@ -218,6 +222,9 @@ async def _until_done(
     robot_since = api.view.ready_at if api.view is not None else None
     while True:
         heard.take(worker, report)
+        if worker.lost:  # the page says "reload to reconnect"; its worker does
+            report.notices.append("the connection to the robot was lost")
+            raise ConnectionLostError("the connection to the robot was lost")
         view = await api.refresh()
         if view.state in ("queued", "starting") or view.ready_at != robot_since:
             report.notices.append(view.notice or "")
