@@ -22,7 +22,7 @@ def test_a_connection_the_server_closes_is_reported_lost_not_waited_out(tmp_path
             try:
                 assert not client.lost
                 server.process.send_signal(signal.SIGINT)
-                with pytest.raises(ConnectionLostError, match="is (closed|failed)"):
+                with pytest.raises(ConnectionLostError, match=r"is (closed|failed)"):
                     await client.wait_for(lambda state: False, timeout=120)
                 assert client.lost
             finally:
