@@ -117,7 +117,7 @@ def successes(results: dict[str, Any], rollouts: int) -> dict[str, str]:
     for run, report in results.items():
         arm = run.split(" / ")[0]
         total = totals.setdefault(arm, [0, 0])
-        total[0] += int(report["successes"])
+        total[0] += int(report["results"]["robosuite"]["successes"])
         total[1] += rollouts
     return {arm: f"{won} / {tried}" for arm, (won, tried) in totals.items()}
 
