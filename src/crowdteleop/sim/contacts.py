@@ -43,7 +43,8 @@ def table_geoms(
 
 
 class ContactReader:
-    """Turns MuJoCo's contact list into robot-part / object events.
+    """Turns MuJoCo's contact list into robot-part / object events; the table (`table_geoms`)
+    is one of the objects, for every backend.
 
     Runs every control step, so the contact list is classified with numpy (geom -> part / object
     lookup tables) and only robot-object contacts cost a `mj_contactForce` call.
@@ -56,6 +57,7 @@ class ContactReader:
         object_geoms: Mapping[int, str],
     ) -> None:
         self._model = model
+        object_geoms = {**object_geoms, **table_geoms(model, robot_geoms, object_geoms)}
         self._parts = sorted(set(robot_geoms.values()))
         self._objects = sorted(set(object_geoms.values()))
         self._part_of = np.full(model.ngeom, -1)

@@ -19,7 +19,7 @@ from crowdteleop.errors import (
     UnknownRobotError,
 )
 from crowdteleop.sim.config import SimConfig
-from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, table_geoms
+from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms
 from crowdteleop.sim.declared import DeclaredChecks, generic_progress
 from crowdteleop.sim.mujoco_backend import scene
 from crowdteleop.sim.mujoco_backend.objects import MujocoScene, SceneObjects
@@ -278,6 +278,4 @@ class MujocoSimulation:
             geom: model.body(model.geom_bodyid[geom]).name
             for geom in body_subtree_geoms(model, [self._base_body_id])
         }
-        objects = self._objects.contact_names(model)
-        table = table_geoms(model, robot_geoms, objects)
-        return ContactReader(model, robot_geoms, {**objects, **table})
+        return ContactReader(model, robot_geoms, self._objects.contact_names(model))

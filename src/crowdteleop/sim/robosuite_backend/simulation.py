@@ -17,7 +17,7 @@ from crowdteleop.errors import ConfigError, InvalidStateError, UnknownRobotError
 from crowdteleop.provenance.controllers import CompositeController, arm_controller
 from crowdteleop.sim import mjcf
 from crowdteleop.sim.config import SimConfig
-from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, table_geoms, touching
+from crowdteleop.sim.contacts import ContactReader, body_subtree_geoms, touching
 from crowdteleop.sim.fastrender import FastSceneRenderer
 from crowdteleop.sim.mujoco_data import flat_state, pose_from_matrix
 from crowdteleop.sim.robosuite_backend import fast_model, model_fixes, tasks
@@ -382,5 +382,4 @@ class RobosuiteSimulation:
             for obj in tasks.active_objects(self._env)
             for geom in body_subtree_geoms(model, [model.body(obj.root_body).id])
         }
-        table = table_geoms(model, robot_geoms, object_geoms)
-        return ContactReader(model, robot_geoms, {**object_geoms, **table})
+        return ContactReader(model, robot_geoms, object_geoms)
