@@ -125,12 +125,33 @@ async def _grid_and_filter(page: Any, seen: dict[str, Any]) -> None:
     )
     await page.fill("#filters input[name=task]", "stack")
     await wait_js(page, f"{CARDS} === 2", 10)
-    await page.select_option("#filters select[name=flagged]", "true")
-    await wait_js(page, f"{CARDS} === 1", 10)
+    await _an_older_answer_arriving_last(page)
     seen["filtered"] = await page.evaluate("document.querySelector('#grid .card').dataset.episode")
+    seen["after_stale"] = await page.evaluate(CARDS)
     await page.fill("#filters input[name=task]", "")
     await page.select_option("#filters select[name=flagged]", "")
     await wait_js(page, f"{CARDS} === 4", 10)
+
+
+async def _an_older_answer_arriving_last(page: Any) -> None:
+    """Two filters changed in quick succession: the answer to the first (task only) is held
+    until the second (task and flagged) is drawn, then let through; the grid keeps the second."""
+    release = asyncio.Event()
+
+    async def hold_unflagged(route: Any) -> None:
+        if "flagged=" not in route.request.url:
+            await release.wait()
+        await route.continue_()
+
+    await page.route("**/api/review/episodes?*", hold_unflagged)
+    task = "#filters input[name=task]"
+    await page.dispatch_event(task, "change")  # the older request: task=stack
+    await page.select_option("#filters select[name=flagged]", "true")
+    await wait_js(page, f"{CARDS} === 1", 10)
+    async with page.expect_event("requestfinished", lambda r: "flagged=" not in r.url):
+        release.set()
+    await page.evaluate("new Promise((resolve) => setTimeout(resolve, 300))")  # its handling
+    await page.unroute("**/api/review/episodes?*")
 
 
 async def _play(page: Any, seen: dict[str, Any]) -> None:
@@ -220,7 +241,7 @@ def test_the_reviewer_page_plays_and_decides_by_keyboard(tmp_path, screenshots):
         ).json()
     assert seen["errors"] == [] and seen["violations"] == [], seen
     assert seen["cards"] == ["stack-1", "stack-0", "lift-1", "lift-0"], seen  # newest first
-    assert seen["filtered"] == "stack-1", seen
+    assert seen["filtered"] == "stack-1" and seen["after_stale"] == 1, seen
     start, later = seen["advanced"]
     assert later > start, seen
     assert abs(seen["duration"] - 3.5) < 0.2, seen  # 70 steps at 20 Hz

@@ -11,7 +11,9 @@ const $ = (id) => document.getElementById(id);
 const PAGE = 48;
 const number = (x) => (x === null || x === undefined ? "–" : String(Number.isInteger(x) ? x : x.toFixed(1)));
 
-const state = { token: null, reviewer: null, episodes: [], total: 0, chosen: null };
+// `loads` numbers the grid's requests: filters changed quickly send several, and an older
+// answer arriving last must not draw over the newer one.
+const state = { token: null, reviewer: null, episodes: [], total: 0, chosen: null, loads: 0 };
 
 class RequestError extends Error {
   constructor(status, payload) {
@@ -97,7 +99,9 @@ function drawGrid() {
 }
 
 async function load(more = false) {
+  const mine = ++state.loads;
   const page = await request(`/api/review/episodes?${query(more ? state.episodes.length : 0)}`);
+  if (mine !== state.loads) return;
   state.episodes = more ? [...state.episodes, ...page.episodes] : page.episodes;
   state.total = page.total;
   drawGrid();
