@@ -154,8 +154,29 @@ async def _an_older_answer_arriving_last(page: Any) -> None:
     await page.unroute("**/api/review/episodes?*")
 
 
-async def _play(page: Any, seen: dict[str, Any]) -> None:
+async def _one_card_clicked_then_another(page: Any) -> None:
+    """lift-1 clicked, then lift-0 before lift-1's detail came: lift-1's answer, held until
+    lift-0's is shown and then let through, must not take the player the keys decide on."""
+    release = asyncio.Event()
+
+    async def hold_lift_1(route: Any) -> None:
+        if route.request.url.endswith("/lift-1"):
+            await release.wait()
+        await route.continue_()
+
+    await page.route("**/api/review/episodes/lift-*", hold_lift_1)
+    await page.click("#grid .card[data-episode='lift-1']")
     await page.click("#grid .card[data-episode='lift-0']")
+    await wait_js(page, "document.querySelector('#title span').textContent.startsWith('lift-0')")
+    async with page.expect_event("requestfinished", lambda r: r.url.endswith("/lift-1")):
+        release.set()
+    await page.evaluate("new Promise((resolve) => setTimeout(resolve, 300))")  # its handling
+    await page.unroute("**/api/review/episodes/lift-*")
+
+
+async def _play(page: Any, seen: dict[str, Any]) -> None:
+    await _one_card_clicked_then_another(page)
+    seen["title"] = await page.inner_text("#title")
     await wait_js(page, f"{VIDEO}.readyState >= 2 && {VIDEO}.currentTime > 0.2", 90)
     first = await page.evaluate(f"{VIDEO}.currentTime")
     await asyncio.sleep(0.4)
@@ -242,6 +263,7 @@ def test_the_reviewer_page_plays_and_decides_by_keyboard(tmp_path, screenshots):
     assert seen["errors"] == [] and seen["violations"] == [], seen
     assert seen["cards"] == ["stack-1", "stack-0", "lift-1", "lift-0"], seen  # newest first
     assert seen["filtered"] == "stack-1" and seen["after_stale"] == 1, seen
+    assert seen["title"].startswith("lift-0"), seen
     start, later = seen["advanced"]
     assert later > start, seen
     assert abs(seen["duration"] - 3.5) < 0.2, seen  # 70 steps at 20 Hz

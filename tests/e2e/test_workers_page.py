@@ -127,6 +127,26 @@ def _write(database_url: str, rows: list[Any]) -> None:
 ORDER = "() => [...document.querySelectorAll('#workers tbody tr')].map((tr) => tr.dataset.worker)"
 
 
+async def _one_worker_clicked_then_another(page: Any) -> None:
+    """w_ada clicked, then w_cai before w_ada's figures came: w_ada's answer, held until
+    w_cai's is shown and then let through, must not take the panel Block acts on."""
+    release = asyncio.Event()
+
+    async def hold_ada(route: Any) -> None:
+        if route.request.url.endswith("/w_ada"):
+            await release.wait()
+        await route.continue_()
+
+    await page.route("**/api/admin/workers/w_*", hold_ada)
+    await page.click("#workers tr[data-worker='w_ada']")
+    await page.click("#workers tr[data-worker='w_cai']")
+    await wait_js(page, "document.getElementById('detail-title').textContent.startsWith('w_cai')")
+    async with page.expect_event("requestfinished", lambda r: r.url.endswith("/w_ada")):
+        release.set()
+    await page.evaluate("new Promise((resolve) => setTimeout(resolve, 300))")  # its handling
+    await page.unroute("**/api/admin/workers/w_*")
+
+
 async def _use(url: str, screenshots: Path) -> dict[str, Any]:
     from playwright.async_api import async_playwright
 
@@ -145,8 +165,8 @@ async def _use(url: str, screenshots: Path) -> dict[str, Any]:
         seen["by_demos"] = await page.evaluate(ORDER)
         await page.click("#workers th[data-column='4']")  # and fewest first
         seen["by_demos_up"] = await page.evaluate(ORDER)
-        await page.click("#workers tr[data-worker='w_cai']")
-        await wait_js(page, "!document.getElementById('detail').hidden", 10)
+        await _one_worker_clicked_then_another(page)
+        seen["title"] = await page.inner_text("#detail-title")
         seen["episodes"] = await page.locator("#episodes tr").count()
         await page.fill("#block-reason", "rushed, dropped objects")
         await page.click("#block")
@@ -179,6 +199,7 @@ def test_the_workers_page_sorts_opens_a_worker_and_blocks_them(tmp_path, screens
     assert seen["by_reputation"][0] == "w_ada" and seen["by_reputation"][-1] == "w_cai", seen
     assert seen["by_demos"][:2] == ["w_ada", "w_dee"] and seen["by_demos"][-1] == "w_fay", seen
     assert seen["by_demos_up"] == seen["by_demos"][::-1] or seen["by_demos_up"][0] == "w_fay"
+    assert seen["title"].startswith("w_cai"), seen
     assert seen["episodes"] == 1 + len(cai["episodes"]), seen
     assert seen["status"].startswith("blocked") and "rushed" in seen["status"], seen
     assert seen["unblock_shown"], seen

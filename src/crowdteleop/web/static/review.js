@@ -138,6 +138,7 @@ async function choose(id) {
   $("reject-form").hidden = true;
   $("player").hidden = false;
   const episode = await request(`/api/review/episodes/${encodeURIComponent(id)}`);
+  if (state.chosen !== id) return; // j pressed twice: the first answer came after the second choice
   drawDetail(episode);
   $("video-status").textContent = "rendering the episode from its recorded states…";
   const video = $("video");

@@ -120,7 +120,10 @@ function drawDetail(w) {
 async function openWorker(id) {
   state.chosen = id;
   drawTable();
-  drawDetail(await call(`/api/admin/workers/${encodeURIComponent(id)}`, { token: state.token }));
+  const worker = await call(`/api/admin/workers/${encodeURIComponent(id)}`, { token: state.token });
+  // Two rows clicked quickly: the first answer, arriving last, must not show one worker while
+  // Block acts on the other.
+  if (state.chosen === id) drawDetail(worker);
 }
 
 async function setBlocked(blocked) {
