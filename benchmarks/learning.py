@@ -3,11 +3,15 @@ the scale of one 2-core machine, plus BC-RNN on the same data.
 
     .venv/bin/python benchmarks/learning.py --ppo-budget 5m --bc-epochs 50 \
         > out/learning.log 2>&1 &
+    # SAC with the demos in its buffer, an hour a run, lift only, no BC:
+    .venv/bin/python benchmarks/learning.py --algos sac --tasks lift --bc-counts "" \
+        --eval-sims both > out/learning-sac.log 2>&1 &
 
 1. scripted demonstrations recorded through the platform's control and recording path (the
    files workers produce), ``--demos`` successes per task, Panda with OSC;
 2. ``crowdteleop dataset build --obs low-dim``;
-3. ``crowdteleop learn rl`` per task x demonstration count {0, 10, 100} x seed, and ``learn
+3. ``crowdteleop learn rl`` (``--algos``: ppo, sac) per task x demonstration count {0, 10, 100}
+   x seed, and ``learn
    bc`` on 10 and 100 demos, ``--jobs`` at a time, each then ``learn eval`` (ours: the paper's
    return over 1000 steps for PPO, success within robomimic's horizon for BC);
 4. ``crowdteleop learn table`` (Markdown) and the learning curves (PNG).
@@ -91,24 +95,27 @@ def build_datasets(
 Job = tuple[str, list[list[str]]]  # a name and its commands, run one after the other
 
 
-def ppo_jobs(
+def rl_jobs(
     out: Path,
     datasets: dict[str, Path],
     seed: int,
     counts: str,
-    rl_options: list[str],
+    rl_options: dict[str, list[str]],
+    eval_sims: str,
     eval_episodes: int,
 ) -> list[Job]:
-    """`learn rl` then `learn eval` per task and demonstration count, for one seed."""
+    """`learn rl` then `learn eval` per algorithm, task and demonstration count, for one seed;
+    ``rl_options``: each algorithm's options ("ppo", "sac")."""
     jobs = []
-    for task, dataset in datasets.items():
-        for count in (int(c) for c in counts.split(",")):
-            runs = out / "ppo" / task / f"demos_{count}"
-            rl = [*CLI, "learn", "rl", "--dataset", str(dataset), "--demos", str(count)]
-            rl += ["--output", str(runs), "--first-seed", str(seed), *rl_options]
-            evaluate = [*CLI, "learn", "eval", str(runs / f"seed_{seed}"), "--sim", "ours"]
-            evaluate += ["--episodes", str(eval_episodes), "--video", "1"]
-            jobs.append((f"ppo-{task}-{count}-{seed}", [rl, evaluate]))
+    for algo, options in rl_options.items():
+        for task, dataset in datasets.items():
+            for count in (int(c) for c in counts.split(",")):
+                runs = out / algo / task / f"demos_{count}"
+                rl = [*CLI, "learn", "rl", "--algo", algo, "--dataset", str(dataset)]
+                rl += ["--demos", str(count), "--output", str(runs), "--first-seed", str(seed)]
+                evaluate = [*CLI, "learn", "eval", str(runs / f"seed_{seed}"), "--sim", eval_sims]
+                evaluate += ["--episodes", str(eval_episodes), "--video", "1"]
+                jobs.append((f"{algo}-{task}-{count}-{seed}", [[*rl, *options], evaluate]))
     return jobs
 
 
@@ -136,7 +143,11 @@ def main(
     bc_counts: str = "10,100",
     seeds: int = 3,
     demos: int = 112,  # 10 % go to mask/valid: BC still gets 100 to train on
+    algos: str = "ppo",
     ppo_budget: str = "5m",
+    sac_budget: str = "1h",
+    sac_horizon: int = 200,  # lift's scripted demos take ~60 steps, pick-place-can's ~300
+    eval_sims: str = "ours",
     bc_epochs: int = 50,
     n_envs: int = 4,
     eval_episodes: int = 10,
@@ -149,11 +160,14 @@ def main(
     datasets = build_datasets(out, tasks, demos, timings)
 
     # seed-major, so that every condition has a first seed early (and BC after it)
-    rl_options = ["--budget", ppo_budget, "--vec", "dummy", "--n-envs", str(n_envs), "--resume"]
+    ppo = ["--budget", ppo_budget, "--vec", "dummy", "--n-envs", str(n_envs), "--resume"]
+    sac = ["--budget", sac_budget, "--horizon", str(sac_horizon), "--resume"]
+    options = {"ppo": ppo, "sac": sac}
+    rl_options = {algo: options[algo] for algo in algos.split(",")}
     commands: list[Job] = []
     for seed in range(seeds):
-        commands += ppo_jobs(out, datasets, seed, demo_counts, rl_options, eval_episodes)
-        if seed == 0:
+        commands += rl_jobs(out, datasets, seed, demo_counts, rl_options, eval_sims, eval_episodes)
+        if seed == 0 and bc_counts:
             commands += bc_jobs(out, datasets, bc_counts, bc_epochs, eval_episodes)
 
     def job(name: str, steps: list[list[str]]) -> tuple[str, float]:

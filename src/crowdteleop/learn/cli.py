@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal
 
@@ -22,6 +23,7 @@ if TYPE_CHECKING:
 app = typer.Typer(help="Train policies on datasets and evaluate them.", no_args_is_help=True)
 console = Console(soft_wrap=True)
 SimChoice = Literal["ours", "robosuite", "both"]
+Algo = Literal["ppo", "sac"]
 BUDGET = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kKmM]?|[smh])\s*$")
 
 
@@ -66,9 +68,21 @@ def rl(
         bool, typer.Option(help="continue from checkpoints where they exist")
     ] = False,
     threads: Annotated[int, typer.Option(help="torch CPU threads")] = 1,
+    algo: Annotated[
+        Algo, typer.Option(help="ppo: the paper's; sac: SAC with the demos in its buffer")
+    ] = "ppo",
 ) -> None:
     """Demonstration-guided PPO (the paper's): episodes start from demo states with
-    probability --demo-reset-p, sparse reward, LSTM 100 then 300-200 for actor and critic."""
+    probability --demo-reset-p, sparse reward, LSTM 100 then 300-200 for actor and critic.
+    With --algo sac: SAC whose batches are half demos, its actor first cloned from them
+    (docs/learning.md); a training episode ends when solved."""
+    if algo == "sac":
+        steps, seconds = parse_budget(budget)
+        _train_sac_seeds(
+            SacRun(output, dataset, task, robot, demos, steps, seconds, horizon, resume, threads),
+            range(first_seed, first_seed + seeds),
+        )
+        return
     from crowdteleop.learn.config import PPOConfig
     from crowdteleop.learn.data import dataset_env_args
     from crowdteleop.learn.demo_states import load_demo_states
@@ -119,6 +133,75 @@ def rl(
                 env_args=env_args,
             )
             _print_curve(run)
+
+
+@dataclass(frozen=True)
+class SacRun:
+    """What `learn rl --algo sac` was asked for, seeds aside."""
+
+    output: Path
+    dataset: Path | None
+    task: str | None
+    robot: str
+    demos: int
+    steps: int | None
+    seconds: float | None
+    horizon: int
+    resume: bool
+    threads: int
+
+
+def _train_sac_seeds(run: SacRun, seeds: range) -> None:
+    from crowdteleop.learn.config import SACConfig
+    from crowdteleop.learn.data import dataset_env_args
+    from crowdteleop.learn.demo_buffer import load_demo_transitions
+    from crowdteleop.learn.demo_states import load_demo_states
+    from crowdteleop.learn.envs import EnvSettings
+    from crowdteleop.learn.sac import train_sac
+
+    with clear_errors():
+        if run.dataset is None and run.demos:
+            raise typer.BadParameter("--demos needs a --dataset to take them from")
+        if run.dataset is None and run.task is None:
+            raise typer.BadParameter("give a --dataset (or a --task for pure RL)")
+        settings = EnvSettings(
+            sim_config=(
+                load_demo_states(run.dataset, 1).sim_config
+                if run.dataset is not None
+                else {"task": run.task, "robot": run.robot, "action_mode": "osc-pose"}
+            ),
+            horizon=run.horizon,
+            demo_reset_p=0.0,
+            terminate_on_success=True,
+        )
+        transitions = (
+            load_demo_transitions(run.dataset, run.demos, settings.obs_keys)
+            if run.dataset is not None and run.demos
+            else None
+        )
+        env_args = dataset_env_args(run.dataset) if run.dataset is not None else None
+        for seed in seeds:
+            config = SACConfig(
+                demos=run.demos,
+                horizon=run.horizon,
+                total_steps=run.steps or 10**12,
+                budget_s=run.seconds,
+                seed=seed,
+                threads=run.threads,
+            )
+            directory = run.output / f"seed_{seed}"
+            console.print(f"[bold]seed {seed}[/]: {directory} (SAC, {run.demos} demos)")
+            train_sac(
+                config,
+                settings,
+                transitions,
+                directory,
+                resume=run.resume,
+                progress_bar=run.steps is not None,
+                dataset=run.dataset,
+                env_args=env_args,
+            )
+            _print_curve(directory)
 
 
 def _print_curve(run: Path) -> None:
@@ -355,11 +438,11 @@ def table(
     runs: Annotated[list[Path], typer.Argument(help="directories holding evaluated runs")],
     sim: Annotated[str, typer.Option(help="which evaluation: ours or robosuite")] = "ours",
     markdown: Annotated[Path | None, typer.Option(help="also write the table here")] = None,
-    plot: Annotated[Path | None, typer.Option(help="PNG of PPO's learning curves")] = None,
+    plot: Annotated[Path | None, typer.Option(help="PNG of the RL runs' learning curves")] = None,
 ) -> None:
     """The paper's Table 1 layout: mean ± std of the final return (success rate, runs) per
     task and demonstration count, beside the paper's figures."""
-    from crowdteleop.learn.table import collect, plot_curves
+    from crowdteleop.learn.table import RL_ALGOS, collect, plot_curves
     from crowdteleop.learn.table import markdown as as_markdown
 
     results = collect(runs, sim)
@@ -369,7 +452,7 @@ def table(
     console.print(text)
     if markdown is not None:
         markdown.write_text(text)
-    if plot is not None and any(r.algo == "ppo" for r in results):
+    if plot is not None and any(r.algo in RL_ALGOS for r in results):
         plot_curves(results, plot)
         console.print(f"written: {plot}")
 

@@ -85,3 +85,43 @@ class PPOConfig(BaseModel):
     checkpoint_every: int = Field(20_000, ge=1, description="env steps between checkpoints")
     seed: int = Field(0, ge=0)
     threads: int = Field(1, ge=1, description="torch CPU threads")
+
+
+class SACConfig(BaseModel):
+    """One run of SAC with the demonstrations in its replay buffer: RLPD's symmetric sampling
+    (half of every batch from the demos, half from the run's own experience; Ball et al. 2023),
+    the actor first fit to the demos (BC, the mean by squared error, as robomimic's
+    deterministic head), and the critic trained alone for ``warmup_steps`` before the actor
+    follows it, so a random critic does not first undo what BC taught. The reward is the
+    task's sparse one; a training episode ends at its first solved step. With no demos it is
+    plain SAC (random actions for ``learning_starts`` steps, entropy tuned from 1)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    demos: int = Field(0, ge=0, description="demonstrations in the buffer; 0: pure RL")
+    demo_fraction: float = Field(0.5, ge=0, lt=1, description="share of each batch from demos")
+    horizon: int = Field(200, ge=1, description="steps per training episode")
+    obs_keys: tuple[str, ...] = Field(STOCK_OBS_KEYS, min_length=1)
+    total_steps: int = Field(200_000, ge=1, description="environment steps to train for")
+    budget_s: float | None = Field(None, gt=0, description="also stop after this wall time")
+    net_arch: tuple[int, ...] = (256, 256)
+    batch_size: int = Field(256, ge=2)
+    buffer_size: int = Field(1_000_000, ge=1)
+    learning_rate: float = Field(3e-4, gt=0, le=1)
+    gamma: float = Field(0.99, gt=0, le=1)
+    tau: float = Field(0.005, gt=0, le=1)
+    # Fixed and small: the reward is 1 once per episode, and sb3's tuned weight (toward an
+    # entropy of -7) grew to 0.05, an entropy bonus worth more than the task, whose pull on
+    # squashed actions away from +-1 undid the cloned grasp within 10k steps.
+    ent_coef: float = Field(1e-4, ge=0, description="entropy weight")
+    learning_starts: int = Field(1000, ge=0, description="without demos: random steps first")
+    bc_steps: int = Field(5000, ge=0, description="gradient steps fitting the actor to demos")
+    bc_learning_rate: float = Field(1e-3, gt=0, le=1)
+    bc_log_std: float = Field(-1.5, description="the exploration the BC actor starts with")
+    warmup_steps: int = Field(5000, ge=0, description="env steps the critic learns alone")
+    bc_weight: float = Field(1.0, ge=0, description="a BC step on demos after each actor step")
+    eval_every: int = Field(10_000, ge=1, description="env steps between learning-curve points")
+    eval_episodes: int = Field(10, ge=1, description="normal-reset episodes per curve point")
+    checkpoint_every: int = Field(20_000, ge=1, description="env steps between checkpoints")
+    seed: int = Field(0, ge=0)
+    threads: int = Field(1, ge=1, description="torch CPU threads")

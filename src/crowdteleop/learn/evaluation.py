@@ -314,9 +314,11 @@ def load_runner(run: Path) -> tuple[PolicyRunner, dict[str, object]]:
     import pickle
 
     from sb3_contrib import RecurrentPPO
+    from stable_baselines3 import SAC
 
     info = json.loads((run / "run.json").read_text())
-    model = RecurrentPPO.load(str(run / "model.zip"), device="cpu")
+    algorithm = SAC if info.get("algo") == "sac" else RecurrentPPO
+    model = algorithm.load(str(run / "model.zip"), device="cpu")
     normalizer = None
     if (run / "vecnormalize.pkl").exists():
         with (run / "vecnormalize.pkl").open("rb") as file:
@@ -333,7 +335,8 @@ def run_env(
     if not isinstance(env, Mapping):
         raise LearnDataError("run.json names no environment settings ('env')")
     settings = EnvSettings.model_validate(env).model_copy(
-        update={"demo_reset_p": 0.0, "horizon": horizon}
+        # the paper's return counts every solved step, also of a run trained to stop at one
+        update={"demo_reset_p": 0.0, "horizon": horizon, "terminate_on_success": False}
     )
     scene = None
     if sim == "robosuite":

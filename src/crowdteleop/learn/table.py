@@ -36,6 +36,10 @@ PAPER_TABLE = {
 }
 
 
+# what each run.json's ``algo`` is called in the tables
+METHODS = {"ppo": "demo-guided PPO", "sac": "SAC, demos in its buffer", "bc": "BC-RNN"}
+RL_ALGOS = ("ppo", "sac")  # the runs that train by interaction, with curves and step counts
+
 Curve = tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]  # steps, success rate
 
 
@@ -135,7 +139,7 @@ def markdown(results: list[RunResult]) -> str:
         "|---|---|" + "---|" * len(counts),
     ]
     for (algo, task), row in table.items():
-        method = "demo-guided PPO" if algo == "ppo" else "BC-RNN"
+        method = METHODS.get(algo, algo)
         lines.append(
             f"| {task} (ours) | {method} | "
             + " | ".join(row[c].text() if c in row else "" for c in counts)
@@ -151,25 +155,27 @@ def markdown(results: list[RunResult]) -> str:
 
 
 def training_markdown(results: list[RunResult]) -> str:
-    """PPO's training per task and demonstration count: steps, speed, and the return of its
-    last training episodes, where (with demonstrations) most start from a demo's state."""
-    ppo = [r for r in results if r.algo == "ppo" and r.steps is not None]
-    if not ppo:
+    """The RL runs' training per method, task and demonstration count: steps, speed, and the
+    return of their last training episodes (PPO's: most start from a demo's state)."""
+    trained = [r for r in results if r.algo in RL_ALGOS and r.steps is not None]
+    if not trained:
         return ""
     lines = [
         "",
-        "| task | demos | runs | env steps per run | steps / s | training return at the end |",
-        "|---|---|---|---|---|---|",
+        "| method | task | demos | runs | env steps per run | steps / s "
+        "| training return at the end |",
+        "|---|---|---|---|---|---|---|",
     ]
-    groups: dict[tuple[str, int], list[RunResult]] = defaultdict(list)
-    for result in ppo:
-        groups[(result.task, result.demos)].append(result)
-    for (task, demos), runs in sorted(groups.items()):
+    groups: dict[tuple[str, str, int], list[RunResult]] = defaultdict(list)
+    for result in trained:
+        groups[(result.algo, result.task, result.demos)].append(result)
+    for (algo, task, demos), runs in sorted(groups.items()):
         steps = [float(r.steps or 0) for r in runs]
         rates = [float(r.steps or 0) / max(1e-9, r.seconds or 0.0) for r in runs]
         returns = [r.train_return for r in runs if r.train_return is not None]
         lines.append(
-            f"| {task} | {demos} | {len(runs)} | {np.mean(steps):,.0f} | {np.mean(rates):.0f} | "
+            f"| {METHODS.get(algo, algo)} | {task} | {demos} | {len(runs)} "
+            f"| {np.mean(steps):,.0f} | {np.mean(rates):.0f} | "
             + (f"{np.mean(returns):.1f} ± {np.std(returns):.1f}" if returns else "-")
             + " |"
         )
@@ -177,28 +183,28 @@ def training_markdown(results: list[RunResult]) -> str:
 
 
 def plot_curves(results: list[RunResult], output: Path) -> None:
-    """Per task (columns), PPO against environment steps: the success rate from normal
-    resets (top) and the mean return of the training episodes, demonstration starts included
-    (bottom); the mean over seeds per demonstration count, each seed faint behind it."""
+    """Per task and RL method (columns), against environment steps: the success rate from
+    normal resets (top) and the mean return of the training episodes (bottom); the mean over
+    seeds per demonstration count, each seed faint behind it."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ppo = [r for r in results if r.algo == "ppo"]
-    tasks = sorted({r.task for r in ppo})
-    if not tasks:
-        raise ValueError("no PPO runs with curves to plot")
-    fig, axes = plt.subplots(2, len(tasks), figsize=(6 * len(tasks), 7.5), squeeze=False)
+    trained = [r for r in results if r.algo in RL_ALGOS]
+    columns = sorted({(r.task, r.algo) for r in trained})
+    if not columns:
+        raise ValueError("no RL runs with curves to plot")
+    fig, axes = plt.subplots(2, len(columns), figsize=(6 * len(columns), 7.5), squeeze=False)
     panels = (
-        ("curve.csv", "steps", "success_rate", "success rate, normal resets (100 steps)"),
+        ("curve.csv", "steps", "success_rate", "success rate, normal resets"),
         ("progress.csv", "time/total_timesteps", "rollout/ep_rew_mean", "training return"),
     )
     for row, (file, x_key, y_key, label) in enumerate(panels):
-        for axis, task in zip(axes[row], tasks, strict=True):
-            runs = [r for r in ppo if r.task == task]
+        for axis, (task, algo) in zip(axes[row], columns, strict=True):
+            runs = [r for r in trained if (r.task, r.algo) == (task, algo)]
             _plot_panel(axis, runs, file, x_key, y_key)
-            axis.set_title(f"{task}: demonstration-guided PPO")
+            axis.set_title(f"{task}: {METHODS.get(algo, algo)}")
             axis.set_xlabel("environment steps")
             axis.set_ylabel(label)
             axis.grid(alpha=0.3)

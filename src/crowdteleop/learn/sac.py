@@ -1,0 +1,140 @@
+"""SAC with demonstrations (`config.SACConfig`): the sample-efficient learner beside the
+paper's PPO, in the same environments, reward and evaluation (`learn.runs`).
+
+A run directory holds what a PPO run's does (``run.json`` with ``algo: "sac"``, ``model.zip``,
+``progress.csv``, ``curve.csv``, ``state.json``) and ``replay_buffer.pkl``, the run's own
+experience, so ``resume`` continues the same learner; the demos are read from the dataset again.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+from stable_baselines3 import SAC
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
+
+from crowdteleop.learn.config import SACConfig
+from crowdteleop.learn.demo_buffer import DemoReplayBuffer, DemoTransitions
+from crowdteleop.learn.envs import EnvSettings, make_env
+from crowdteleop.learn.runs import RunInfo, begin_run, learn_to_budget
+
+
+class DemoSAC(SAC):
+    """sb3's SAC whose actor waits ``warmup_steps`` for the critic, and, given demos, takes a
+    behaviour-cloning step on a demo batch after each of its own (``bc_weight`` times the
+    squared error of its mean action): the demonstrated behaviour stays while the critic's
+    estimates are still poor far from the demos."""
+
+    warmup_steps: int = 0
+    bc_weight: float = 0.0
+
+    def _update_learning_rate(self, optimizers: Any) -> None:
+        super()._update_learning_rate(optimizers)
+        if self.num_timesteps < self.warmup_steps:
+            for group in self.actor.optimizer.param_groups:
+                group["lr"] = 0.0
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        super().train(gradient_steps, batch_size)
+        buffer = self.replay_buffer
+        if self.bc_weight <= 0 or not isinstance(buffer, DemoReplayBuffer) or buffer.demos is None:
+            return
+        if self.num_timesteps < self.warmup_steps:
+            return
+        for _ in range(gradient_steps):
+            batch = buffer.demo_batch(batch_size)
+            clone_step(self, batch.observations, batch.actions, self.bc_weight)
+
+
+def clone_step(model: SAC, obs: torch.Tensor, actions: torch.Tensor, weight: float) -> float:
+    """One gradient step of the actor's mean toward ``actions`` (squared error)."""
+    mean, _, _ = model.actor.get_action_dist_params(obs)
+    loss = weight * ((torch.tanh(mean) - actions) ** 2).mean()
+    model.actor.optimizer.zero_grad()
+    loss.backward()  # type: ignore[no-untyped-call]  # torch leaves it untyped
+    model.actor.optimizer.step()
+    return float(loss.detach())
+
+
+def pretrain_actor(model: SAC, demos: DemoTransitions, config: SACConfig) -> float:
+    """Behaviour cloning before any interaction: the actor's mean fit to the demos' actions by
+    squared error, its log-std pulled to ``bc_log_std``; the last batch's loss."""
+    generator = torch.Generator().manual_seed(config.seed)
+    obs, actions = torch.as_tensor(demos.obs), torch.as_tensor(demos.actions)
+    optimizer = torch.optim.Adam(model.actor.parameters(), lr=config.bc_learning_rate)
+    loss = torch.zeros(())
+    for _ in range(config.bc_steps):
+        rows = torch.randint(len(obs), (config.batch_size,), generator=generator)
+        mean, log_std, _ = model.actor.get_action_dist_params(obs[rows])
+        loss = ((torch.tanh(mean) - actions[rows]) ** 2).mean()
+        loss = loss + 0.1 * ((log_std - config.bc_log_std) ** 2).mean()
+        optimizer.zero_grad()
+        loss.backward()  # type: ignore[no-untyped-call]  # torch leaves it untyped
+        optimizer.step()
+    return float(loss.detach())
+
+
+def train_sac(
+    config: SACConfig,
+    settings: EnvSettings,
+    demos: DemoTransitions | None,
+    output: Path,
+    resume: bool = False,
+    progress_bar: bool = False,
+    dataset: Path | None = None,
+    env_args: dict[str, object] | None = None,
+) -> Path:
+    """Trains until ``config.total_steps`` (or ``budget_s``); returns the checkpoint's path.
+    With ``resume``, a run that has a checkpoint continues from it (its steps and seconds
+    count toward the budget); one without starts afresh."""
+    torch.set_num_threads(config.threads)
+    state = begin_run(output, resume, RunInfo.of("sac", settings, config, dataset, env_args))
+    model_path, buffer_path = output / "model.zip", output / "replay_buffer.pkl"
+    venv = DummyVecEnv([lambda: make_env(settings)])
+    try:
+        model = _model(config, venv, model_path if state else None, buffer_path)
+        if demos is not None:
+            _attach(model, demos, config)
+            if not state:
+                pretrain_actor(model, demos, config)
+        learn_to_budget(model, settings, config, output, state, progress_bar)
+        model.save_replay_buffer(str(buffer_path))
+    finally:
+        venv.close()
+    return model_path
+
+
+def _model(config: SACConfig, venv: VecEnv, saved: Path | None, buffer: Path) -> DemoSAC:
+    if saved is not None:
+        model = DemoSAC.load(str(saved), env=venv, device="cpu")
+        if buffer.exists():
+            model.load_replay_buffer(str(buffer))
+        return model
+    with_demos = config.demos > 0
+    model = DemoSAC(
+        "MlpPolicy",
+        venv,
+        learning_rate=config.learning_rate,
+        buffer_size=config.buffer_size,
+        batch_size=config.batch_size,
+        learning_starts=0 if with_demos else config.learning_starts,
+        gamma=config.gamma,
+        tau=config.tau,
+        ent_coef=config.ent_coef,
+        replay_buffer_class=DemoReplayBuffer,
+        seed=config.seed,
+        device="cpu",
+        policy_kwargs={"net_arch": list(config.net_arch)},
+    )
+    model.warmup_steps = config.warmup_steps if with_demos else 0
+    model.bc_weight = config.bc_weight if with_demos else 0.0
+    return model
+
+
+def _attach(model: SAC, demos: DemoTransitions, config: SACConfig) -> None:
+    buffer = model.replay_buffer
+    if not isinstance(buffer, DemoReplayBuffer):
+        raise TypeError(f"a SAC run's buffer is a DemoReplayBuffer, not {type(buffer).__name__}")
+    buffer.attach(demos, config.demo_fraction, config.seed)

@@ -1,0 +1,126 @@
+"""SAC with demonstrations end to end, tiny: `crowdteleop learn rl --algo sac` clones the
+demos into its actor before any interaction, trains a few hundred steps with half of every
+batch from the demos, checkpoints with its replay buffer, resumes, and `learn eval` and `learn
+table` read the run as they read PPO's. Checks the machinery, not learning: the long runs are
+in benchmarks/learning.md."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from crowdteleop.cli import app
+from crowdteleop.learn.config import STOCK_OBS_KEYS, SACConfig
+from crowdteleop.learn.demo_buffer import DemoReplayBuffer, load_demo_transitions
+from crowdteleop.learn.demo_states import load_demo_states
+from crowdteleop.learn.envs import EnvSettings
+from crowdteleop.learn.sac import DemoSAC, pretrain_actor
+
+runner = CliRunner()
+
+
+def invoke(*args):
+    result = runner.invoke(app, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+@pytest.fixture(scope="module")
+def run(lift_dataset, tmp_path_factory):
+    """Trained to 300 steps, then resumed to 600."""
+    output = tmp_path_factory.mktemp("sac")
+    common = ["learn", "rl", "--algo", "sac", "--dataset", lift_dataset, "--demos", 2]
+    common += ["--output", output, "--horizon", 60]
+    invoke(*common, "--budget", 300)
+    seed_dir = output / "seed_0"
+    first = json.loads((seed_dir / "state.json").read_text())
+    invoke(*common, "--budget", 600, "--resume")
+    return seed_dir, first
+
+
+def test_a_run_checkpoints_with_its_experience_and_a_resumed_run_continues_it(run):
+    seed_dir, first = run
+    second = json.loads((seed_dir / "state.json").read_text())
+    assert 300 <= first["steps"] < 600 <= second["steps"]
+    assert second["seconds"] > first["seconds"], "wall time adds up across the two"
+    assert (seed_dir / "replay_buffer.pkl").stat().st_size > 0
+    curve = list(csv.DictReader((seed_dir / "curve.csv").open()))
+    assert int(curve[0]["steps"]) <= 1, "a point before any interaction"
+    info = json.loads((seed_dir / "run.json").read_text())
+    assert (info["algo"], info["task"], info["demos"]) == ("sac", "lift", 2)
+    assert info["env"]["terminate_on_success"] is True and info["env"]["horizon"] == 60
+    assert info["env_args"]["env_name"] == "Lift"
+
+
+def test_the_checkpoint_keeps_the_runs_experience_not_the_demos(run):
+    model = DemoSAC.load(str(run[0] / "model.zip"), device="cpu")
+    model.load_replay_buffer(str(run[0] / "replay_buffer.pkl"))
+    buffer = model.replay_buffer
+    assert isinstance(buffer, DemoReplayBuffer) and buffer.demos is None, "demos are not saved"
+    assert buffer.size() >= 600, "the run's own experience is"
+
+
+def test_eval_and_table_read_a_sac_run(run, tmp_path):
+    seed_dir, _ = run
+    output = invoke("learn", "eval", seed_dir, "--episodes", 2, "--horizon", 30, "--video", 0)
+    assert "ours" in output and "robosuite" in output
+    results = json.loads((seed_dir / "eval.json").read_text())["results"]
+    assert results["ours"]["episodes"] == 2 and results["robosuite"]["horizon"] == 30
+    markdown = tmp_path / "table.md"
+    plot = tmp_path / "curves.png"
+    invoke("learn", "table", seed_dir.parent, "--markdown", markdown, "--plot", plot)
+    text = markdown.read_text()
+    assert "| lift (ours) | SAC, demos in its buffer |" in text
+    assert "| SAC, demos in its buffer | lift | 2 | 1 |" in text
+    assert plot.stat().st_size > 10_000
+
+
+def test_cloning_brings_the_actor_to_the_demos_actions(lift_dataset):
+    demos = load_demo_transitions(lift_dataset, 3, STOCK_OBS_KEYS)
+    settings = EnvSettings(sim_config=load_demo_states(lift_dataset, 1).sim_config)
+    config = SACConfig(demos=3, bc_steps=1500)
+    from crowdteleop.learn.envs import make_env
+
+    env = make_env(settings)
+    try:
+        model = DemoSAC("MlpPolicy", env, seed=0, device="cpu")
+        obs = torch.as_tensor(demos.obs)
+
+        def error() -> float:
+            with torch.no_grad():
+                return float(((model.actor(obs, deterministic=True) - demos.actions) ** 2).mean())
+
+        before = error()
+        pretrain_actor(model, demos, config)
+        after = error()
+    finally:
+        env.close()
+    assert after < 0.05 < before, (before, after)
+    assert np.isfinite(after)
+
+
+def test_pure_rl_needs_no_dataset_and_a_bad_algorithm_is_refused(tmp_path):
+    invoke(
+        "learn",
+        "rl",
+        "--algo",
+        "sac",
+        "--task",
+        "lift",
+        "--budget",
+        50,
+        "--horizon",
+        25,
+        "--output",
+        tmp_path,
+    )
+    assert json.loads((tmp_path / "seed_0" / "run.json").read_text())["demos"] == 0
+    result = runner.invoke(
+        app, ["learn", "rl", "--algo", "dqn", "--task", "lift", "--output", str(tmp_path)]
+    )
+    assert result.exit_code != 0 and "dqn" in result.output
