@@ -124,3 +124,52 @@ def test_pure_rl_needs_no_dataset_and_a_bad_algorithm_is_refused(tmp_path):
         app, ["learn", "rl", "--algo", "dqn", "--task", "lift", "--output", str(tmp_path)]
     )
     assert result.exit_code != 0 and "dqn" in result.output
+
+
+def test_the_critic_normalizes_each_hidden_layer_as_rlpds_does(run):
+    model = DemoSAC.load(str(run[0] / "model.zip"), device="cpu")
+    for network in model.critic.q_networks:
+        kinds = [type(layer).__name__ for layer in network]
+        assert kinds == ["Linear", "LayerNorm", "ReLU"] * 2 + ["Linear"], kinds
+    assert len(model.critic.q_networks) == 2, "twin critics"
+
+
+def _episode_start_hands(run_dir) -> np.ndarray:
+    """The hand's position at the start of each training episode, from the saved buffer."""
+    model = DemoSAC.load(str(run_dir / "model.zip"), device="cpu")
+    model.load_replay_buffer(str(run_dir / "replay_buffer.pkl"))
+    buffer = model.replay_buffer
+    obs, ended = buffer.observations[: buffer.size(), 0], buffer.dones[: buffer.size(), 0]
+    ended = np.maximum(ended, buffer.timeouts[: buffer.size(), 0])
+    starts = np.concatenate([[0], np.flatnonzero(ended[:-1]) + 1])
+    return obs[starts, :3]
+
+
+def test_training_episodes_can_start_in_demo_states_as_the_papers_do(lift_dataset, tmp_path):
+    for name, reset_p in (("normal", 0), ("demo", 1)):
+        invoke(
+            "learn",
+            "rl",
+            "--algo",
+            "sac",
+            "--dataset",
+            lift_dataset,
+            "--demos",
+            2,
+            "--demo-reset-p",
+            reset_p,
+            "--horizon",
+            20,
+            "--budget",
+            200,
+            "--output",
+            tmp_path / name,
+        )
+    info = json.loads((tmp_path / "demo" / "seed_0" / "run.json").read_text())
+    assert info["env"]["demo_reset_p"] == 1.0
+    normal = _episode_start_hands(tmp_path / "normal" / "seed_0")
+    demo = _episode_start_hands(tmp_path / "demo" / "seed_0")
+    assert len(normal) >= 5 and len(demo) >= 5
+    # normal resets start at the arm's home pose (a little joint noise); demo states anywhere
+    # along the demos' reach, grasp and lift
+    assert normal.std(axis=0).max() < 0.02 < demo.std(axis=0).max(), (normal, demo)

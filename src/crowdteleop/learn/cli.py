@@ -54,7 +54,12 @@ def rl(
     budget: Annotated[
         str, typer.Option(help="per seed: env steps (200k, 1.5M) or wall time (30m, 2h)")
     ] = "200k",
-    demo_reset_p: Annotated[float, typer.Option(help="chance a reset starts in a demo")] = 0.9,
+    demo_reset_p: Annotated[
+        float | None,
+        typer.Option(
+            help="chance a reset starts in a demo (default: ppo 0.9, sac 0)", min=0, max=1
+        ),
+    ] = None,
     horizon: Annotated[int, typer.Option(help="steps per training episode")] = 100,
     n_envs: Annotated[int, typer.Option(help="environments stepping in parallel")] = 4,
     vec: Annotated[VecKind, typer.Option(help="subproc, dummy (inline) or ray")] = "subproc",
@@ -79,7 +84,19 @@ def rl(
     if algo == "sac":
         steps, seconds = parse_budget(budget)
         _train_sac_seeds(
-            SacRun(output, dataset, task, robot, demos, steps, seconds, horizon, resume, threads),
+            SacRun(
+                output,
+                dataset,
+                task,
+                robot,
+                demos,
+                demo_reset_p or 0.0,
+                steps,
+                seconds,
+                horizon,
+                resume,
+                threads,
+            ),
             range(first_seed, first_seed + seeds),
         )
         return
@@ -90,6 +107,7 @@ def rl(
     from crowdteleop.learn.ppo import train_ppo
 
     steps, seconds = parse_budget(budget)
+    demo_reset_p = 0.9 if demo_reset_p is None else demo_reset_p
     with clear_errors():
         if dataset is None and demos:
             raise typer.BadParameter("--demos needs a --dataset to take them from")
@@ -144,6 +162,7 @@ class SacRun:
     task: str | None
     robot: str
     demos: int
+    demo_reset_p: float
     steps: int | None
     seconds: float | None
     horizon: int
@@ -157,7 +176,7 @@ def _train_sac_seeds(run: SacRun, seeds: range) -> None:
     from crowdteleop.learn.demo_buffer import load_demo_transitions
     from crowdteleop.learn.demo_states import load_demo_states
     from crowdteleop.learn.envs import EnvSettings
-    from crowdteleop.learn.sac import train_sac
+    from crowdteleop.learn.sac import Demonstrations, train_sac
 
     with clear_errors():
         if run.dataset is None and run.demos:
@@ -171,11 +190,14 @@ def _train_sac_seeds(run: SacRun, seeds: range) -> None:
                 else {"task": run.task, "robot": run.robot, "action_mode": "osc-pose"}
             ),
             horizon=run.horizon,
-            demo_reset_p=0.0,
+            demo_reset_p=run.demo_reset_p,
             terminate_on_success=True,
         )
-        transitions = (
-            load_demo_transitions(run.dataset, run.demos, settings.obs_keys)
+        demos = (
+            Demonstrations(
+                load_demo_transitions(run.dataset, run.demos, settings.obs_keys),
+                load_demo_states(run.dataset, run.demos) if run.demo_reset_p else None,
+            )
             if run.dataset is not None and run.demos
             else None
         )
@@ -194,7 +216,7 @@ def _train_sac_seeds(run: SacRun, seeds: range) -> None:
             train_sac(
                 config,
                 settings,
-                transitions,
+                demos,
                 directory,
                 resume=run.resume,
                 progress_bar=run.steps is not None,

@@ -208,7 +208,8 @@ def plot_curves(results: list[RunResult], output: Path) -> None:
             axis.set_xlabel("environment steps")
             axis.set_ylabel(label)
             axis.grid(alpha=0.3)
-            axis.legend(fontsize=8)
+            if axis.get_legend_handles_labels()[0]:  # a short run may have logged no episode
+                axis.legend(fontsize=8)
         if row == 0:
             for axis in axes[0]:
                 axis.set_ylim(-0.02, 1.02)
