@@ -57,7 +57,7 @@ def rl(
     demo_reset_p: Annotated[
         float | None,
         typer.Option(
-            help="chance a reset starts in a demo (default: ppo 0.9, sac 0)", min=0, max=1
+            help="chance a reset starts in a demo (default: ppo 0.9, sac 0.5)", min=0, max=1
         ),
     ] = None,
     horizon: Annotated[int, typer.Option(help="steps per training episode")] = 100,
@@ -90,7 +90,7 @@ def rl(
                 task,
                 robot,
                 demos,
-                demo_reset_p or 0.0,
+                0.5 if demo_reset_p is None else demo_reset_p,
                 steps,
                 seconds,
                 horizon,

@@ -108,6 +108,9 @@ class SACConfig(BaseModel):
     batch_size: int = Field(256, ge=2)
     buffer_size: int = Field(1_000_000, ge=1)
     learning_rate: float = Field(3e-4, gt=0, le=1)
+    # a tenth of the critic's: the critic's guesses about the few-percent differences between
+    # actions under a sparse reward are noisier than those differences at first
+    actor_learning_rate: float | None = Field(3e-5, gt=0, le=1, description="None: the critic's")
     gamma: float = Field(0.99, gt=0, le=1)
     tau: float = Field(0.005, gt=0, le=1)
     # Fixed and small: the reward is 1 once per episode, and sb3's tuned weight (toward an
@@ -119,7 +122,7 @@ class SACConfig(BaseModel):
     bc_learning_rate: float = Field(1e-3, gt=0, le=1)
     bc_log_std: float = Field(-1.5, description="the exploration the BC actor starts with")
     warmup_steps: int = Field(5000, ge=0, description="env steps the critic learns alone")
-    bc_weight: float = Field(1.0, ge=0, description="a BC step on demos after each actor step")
+    bc_weight: float = Field(10.0, ge=0, description="a BC step on demos after each actor step")
     eval_every: int = Field(10_000, ge=1, description="env steps between learning-curve points")
     eval_episodes: int = Field(10, ge=1, description="normal-reset episodes per curve point")
     checkpoint_every: int = Field(20_000, ge=1, description="env steps between checkpoints")

@@ -72,12 +72,16 @@ class DemoSAC(SAC):
 
     warmup_steps: int = 0
     bc_weight: float = 0.0
+    actor_learning_rate: float | None = None  # None: the critic's
 
     def _update_learning_rate(self, optimizers: Any) -> None:
         super()._update_learning_rate(optimizers)
+        rate = self.actor_learning_rate
         if self.num_timesteps < self.warmup_steps:
+            rate = 0.0
+        if rate is not None:
             for group in self.actor.optimizer.param_groups:
-                group["lr"] = 0.0
+                group["lr"] = rate
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         super().train(gradient_steps, batch_size)
@@ -175,6 +179,7 @@ def _model(config: SACConfig, venv: VecEnv, saved: Path | None, buffer: Path) ->
     )
     model.warmup_steps = config.warmup_steps if with_demos else 0
     model.bc_weight = config.bc_weight if with_demos else 0.0
+    model.actor_learning_rate = config.actor_learning_rate
     return model
 
 
