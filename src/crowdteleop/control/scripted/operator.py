@@ -11,6 +11,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial.transform import Rotation, Slerp
 
@@ -27,6 +28,9 @@ CHATTER_OPEN_S = 0.3  # opens this long, once or twice, before it closes for goo
 # counted as a success), the gripper opens this long, then closes again (on nothing).
 DROP_AT_FRACTION = 0.25
 DROP_OPEN_S = 0.5
+# A hand held up short of a mark: still within this (the Panda under OSC trembles ~6 mm at
+# 10 Hz while it waits; a hand on its way moves ~10 mm a step)
+STILL_M = 0.01
 
 
 class OperatorStyle(BaseModel):
@@ -112,6 +116,9 @@ class _Leg:
     chatter: list[tuple[float, bool]] = field(default_factory=list)
     drop_after_m: float | None = None  # open the gripper once the hand has moved this far
     drop_s: float = 0.0  # the gripper is open for a drop this much longer
+    # where the hand has stayed (within STILL_M) since its commanded pose reached the mark
+    still_at: npt.NDArray[np.float64] | None = None
+    still_s: float = 0.0
 
 
 class ScriptedOperator:
@@ -214,7 +221,8 @@ class ScriptedOperator:
         self._gripper_closed = self._gripper_for(leg)
         if leg.aim is not None or leg.chatter:
             return  # neither overshot nor done hesitating: not there yet
-        arrived = (
+        held_short = self._held_short(leg, end_effector)
+        arrived = held_short or (
             np.linalg.norm(end_effector.position - leg.waypoint.pose.position)
             < leg.waypoint.tolerance_m
         )
@@ -222,6 +230,24 @@ class ScriptedOperator:
             leg.dwell_s += self._dt
             if leg.dwell_s >= leg.waypoint.dwell_s:
                 self._next_leg()
+
+    def _held_short(self, leg: _Leg, end_effector: Pose) -> bool:
+        """Whether the hand has stood still short of the mark for the waypoint's ``stall_s``
+        while the command was already there: something (a floor, the object it nudged) holds
+        it up, and waiting out the timeout would only add idle steps to the demonstration,
+        then close the gripper where it is all the same."""
+        waypoint = leg.waypoint
+        assert self._hand is not None
+        if waypoint.stall_s is None or not np.array_equal(
+            self._hand.position, waypoint.pose.position
+        ):
+            return False
+        here = end_effector.position
+        if leg.still_at is None or np.linalg.norm(here - leg.still_at) > STILL_M:
+            leg.still_at, leg.still_s = here.copy(), 0.0
+        else:
+            leg.still_s += self._dt
+        return leg.still_s >= waypoint.stall_s
 
     def _next_leg(self) -> bool:
         assert self._plan is not None and self._hand is not None

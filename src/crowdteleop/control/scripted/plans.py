@@ -38,6 +38,7 @@ Plan = Callable[[ScriptedScene], Iterator[Waypoint]]
 HOVER_M = 0.10
 DESCEND = "descend"  # the label of the leg down to a grasp (an injected press happens there)
 DROP_NEAR_SIDE_M = 0.05
+DESCENT_STALL_S = 0.3  # held up this long over a pick-place object: grasp there
 
 
 def _object_name(sim: ScriptedScene) -> str:
@@ -45,7 +46,12 @@ def _object_name(sim: ScriptedScene) -> str:
 
 
 def _pick(
-    sim: ScriptedScene, grasp_frame: str, axis_yaw: float, period: float, grasp_depth: float = 0.0
+    sim: ScriptedScene,
+    grasp_frame: str,
+    axis_yaw: float,
+    period: float,
+    grasp_depth: float = 0.0,
+    stall_s: float | None = None,
 ) -> Iterator[Waypoint]:
     """Hover over `grasp_frame`, descend with the fingers aligned, close, wait.
 
@@ -60,7 +66,9 @@ def _pick(
     yield Waypoint(at(above(), rotation), False, tolerance_m=0.02, label="hover")
     yield Waypoint(at(above(), rotation), False, tolerance_m=0.01, dwell_s=0.2, label="align")
     down = sim.object_poses()[grasp_frame].position + [0.0, 0.0, -grasp_depth]
-    yield Waypoint(at(down, rotation), False, tolerance_m=0.006, dwell_s=0.1, label=DESCEND)
+    yield Waypoint(
+        at(down, rotation), False, tolerance_m=0.006, dwell_s=0.1, label=DESCEND, stall_s=stall_s
+    )
     yield Waypoint(at(down, rotation), True, tolerance_m=0.02, dwell_s=0.5, label="grasp")
 
 
@@ -98,7 +106,9 @@ def pick_place(sim: ScriptedScene) -> Iterator[Waypoint]:
     home = sim.robot_state().end_effector
     grasp = PICK_PLACE_GRASPS[name]
     axis = 0.0 if grasp.axis is None else yaw_of(sim.object_poses()[name]) + grasp.axis
-    yield from _pick(sim, name, axis, grasp.period, grasp_depth=grasp.depth)
+    # the fingers meet the bin's floor 0-15 mm short of the mark: without stall_s every
+    # demonstration waited out the descent's timeout (~110 steps of an open hand at the can)
+    yield from _pick(sim, name, axis, grasp.period, grasp.depth, stall_s=DESCENT_STALL_S)
     hand = sim.robot_state().end_effector
     target = sim.object_poses()[f"{name}/target"].position.copy()
     # drop on the near side of the target, within the bin's quadrant: shorter arms (Panda)

@@ -21,6 +21,9 @@ class Waypoint:
     dwell_s: float = 0.0
     timeout_s: float = 6.0
     label: str = ""
+    # also there once the hand has been held up short of the mark this long (the command
+    # there): a descent whose fingers meet the floor under an object, or nudge the object
+    stall_s: float | None = None
 
 
 def yaw_aligned(reference: Pose, axis_yaw: float, period: float) -> Rotation:
