@@ -3,9 +3,11 @@ the scale of one 2-core machine, plus BC-RNN on the same data.
 
     .venv/bin/python benchmarks/learning.py --ppo-budget 5m --bc-epochs 50 \
         > out/learning.log 2>&1 &
-    # SAC with the demos in its buffer, an hour a run, lift only, no BC:
-    .venv/bin/python benchmarks/learning.py --algos sac --tasks lift --bc-counts "" \
-        --eval-sims both > out/learning-sac.log 2>&1 &
+    # SAC with the demos in its buffer, 100k steps a run (~35 min two at a time), lift only,
+    # no BC, seeds 1 and 2 (--first-seed), the runs' results kept for `learn table` later:
+    .venv/bin/python benchmarks/learning.py --out out/learning-sac --algos sac --tasks lift \
+        --bc-counts "" --demo-counts 10,100 --seeds 2 --first-seed 1 --sac-budget 100k \
+        --eval-sims both --eval-episodes 20 --keep benchmarks/runs > out/learning-sac.log 2>&1 &
 
 1. scripted demonstrations recorded through the platform's control and recording path (the
    files workers produce), ``--demos`` successes per task, Panda with OSC;
@@ -22,6 +24,7 @@ Writes everything under ``--out`` (default out/learning/); logs per job in ``log
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -92,6 +95,27 @@ def build_datasets(
     return datasets
 
 
+# what `learn table` reads of a run, a few kB: kept in the repository, runs add up over sessions
+KEPT_FILES = ("run.json", "state.json", "curve.csv", "progress.csv", "eval.json")
+
+
+def keep_results(out: Path, keep: Path) -> int:
+    """Copies what `learn table` reads of every evaluated run under ``out`` to the same place
+    under ``keep`` (no checkpoints, no videos); returns how many runs."""
+    kept = 0
+    for run_file in sorted(out.rglob("run.json")):
+        run = run_file.parent
+        if not (run / "eval.json").exists():
+            continue
+        target = keep / run.relative_to(out)
+        target.mkdir(parents=True, exist_ok=True)
+        for name in KEPT_FILES:
+            if (run / name).exists():
+                shutil.copy2(run / name, target / name)
+        kept += 1
+    return kept
+
+
 Job = tuple[str, list[list[str]]]  # a name and its commands, run one after the other
 
 
@@ -142,6 +166,7 @@ def main(
     demo_counts: str = "0,10,100",
     bc_counts: str = "10,100",
     seeds: int = 3,
+    first_seed: int = 0,  # seeds first_seed .. first_seed + seeds - 1, e.g. to add seeds later
     demos: int = 112,  # 10 % go to mask/valid: BC still gets 100 to train on
     algos: str = "ppo",
     ppo_budget: str = "5m",
@@ -153,6 +178,7 @@ def main(
     eval_episodes: int = 10,
     jobs: int = 2,
     plot: Path = Path("benchmarks/learning-curves.png"),
+    keep: Path | None = None,  # e.g. benchmarks/runs: the runs' results, for `learn table` later
 ) -> None:
     out.mkdir(parents=True, exist_ok=True)
     timings: dict[str, object] = {"robosuite lift step ms": robosuite_lift_step_ms()}
@@ -165,9 +191,9 @@ def main(
     options = {"ppo": ppo, "sac": sac}
     rl_options = {algo: options[algo] for algo in algos.split(",")}
     commands: list[Job] = []
-    for seed in range(seeds):
+    for seed in range(first_seed, first_seed + seeds):
         commands += rl_jobs(out, datasets, seed, demo_counts, rl_options, eval_sims, eval_episodes)
-        if seed == 0 and bc_counts:
+        if seed == first_seed and bc_counts:
             commands += bc_jobs(out, datasets, bc_counts, bc_epochs, eval_episodes)
 
     def job(name: str, steps: list[list[str]]) -> tuple[str, float]:
@@ -181,6 +207,8 @@ def main(
             timings[name] = seconds
     timings["all jobs"] = time.perf_counter() - started
     (out / "timings.json").write_text(json.dumps(timings, indent=2))
+    if keep is not None:
+        print(f"kept {keep_results(out, keep)} runs' results in {keep}", flush=True)
     table = [*CLI, "learn", "table", str(out), "--markdown", str(out / "table.md")]
     run([*table, "--plot", str(plot)], out / "logs" / "table.log")
     print((out / "table.md").read_text())
