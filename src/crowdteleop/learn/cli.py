@@ -81,81 +81,32 @@ def rl(
     probability --demo-reset-p, sparse reward, LSTM 100 then 300-200 for actor and critic.
     With --algo sac: SAC whose batches are half demos, its actor first cloned from them
     (docs/learning.md); a training episode ends when solved."""
-    if algo == "sac":
-        steps, seconds = parse_budget(budget)
-        _train_sac_seeds(
-            SacRun(
-                output,
-                dataset,
-                task,
-                robot,
-                demos,
-                0.5 if demo_reset_p is None else demo_reset_p,
-                steps,
-                seconds,
-                horizon,
-                resume,
-                threads,
-            ),
-            range(first_seed, first_seed + seeds),
-        )
-        return
-    from crowdteleop.learn.config import PPOConfig
-    from crowdteleop.learn.data import dataset_env_args
-    from crowdteleop.learn.demo_states import load_demo_states
-    from crowdteleop.learn.envs import EnvSettings
-    from crowdteleop.learn.ppo import train_ppo
-
     steps, seconds = parse_budget(budget)
-    demo_reset_p = 0.9 if demo_reset_p is None else demo_reset_p
-    with clear_errors():
-        if dataset is None and demos:
-            raise typer.BadParameter("--demos needs a --dataset to take them from")
-        if dataset is None and task is None:
-            raise typer.BadParameter("give a --dataset (or a --task for pure RL)")
-        states = load_demo_states(dataset, demos or None) if dataset is not None else None
-        env_args = dataset_env_args(dataset) if dataset is not None else None
-        sim_config: dict[str, object] = (
-            states.sim_config
-            if states is not None
-            else {"task": task, "robot": robot, "action_mode": "osc-pose"}
-        )
-        settings = EnvSettings(sim_config=sim_config, horizon=horizon, demo_reset_p=demo_reset_p)
-        for seed in range(first_seed, first_seed + seeds):
-            config = PPOConfig(
-                demos=demos,
-                demo_reset_p=demo_reset_p,
-                horizon=horizon,
-                total_steps=steps or 10**12,
-                budget_s=seconds,
-                n_envs=n_envs,
-                vec=vec,
-                ray_address=ray_address,
-                ray_actor_cpus=ray_actor_cpus,
-                n_steps=n_steps,
-                batch_size=min(256, n_steps * n_envs),
-                eval_every=eval_every,
-                seed=seed,
-                threads=threads,
-            )
-            run = output / f"seed_{seed}"
-            console.print(f"[bold]seed {seed}[/]: {run} ({budget}, {demos} demos)")
-            train_ppo(
-                config,
-                settings,
-                states if demos else None,
-                run,
-                resume=resume,
-                progress_bar=steps is not None,
-                dataset=dataset,
-                env_args=env_args,
-            )
-            _print_curve(run)
+    default_reset_p = {"ppo": 0.9, "sac": 0.5}[algo]
+    run = RlRun(
+        output,
+        dataset,
+        task,
+        robot,
+        demos,
+        default_reset_p if demo_reset_p is None else demo_reset_p,
+        steps,
+        seconds,
+        horizon,
+        resume,
+        threads,
+    )
+    seed_range = range(first_seed, first_seed + seeds)
+    if algo == "sac":
+        _train_sac_seeds(run, seed_range)
+        return
+    options = PpoOptions(n_envs, vec, ray_address, n_steps, ray_actor_cpus, eval_every)
+    _train_ppo_seeds(run, options, seed_range)
 
 
 @dataclass(frozen=True)
-class SacRun:
-    """What `learn rl --algo sac` was asked for, seeds aside."""
+class RlRun:
+    """What `learn rl` was asked for, whatever the algorithm, seeds aside."""
 
     output: Path
     dataset: Path | None
@@ -170,7 +121,80 @@ class SacRun:
     threads: int
 
 
-def _train_sac_seeds(run: SacRun, seeds: range) -> None:
+@dataclass(frozen=True)
+class PpoOptions:
+    """What only PPO's runs take: their vector of environments and update size."""
+
+    n_envs: int
+    vec: VecKind
+    ray_address: str | None
+    n_steps: int
+    ray_actor_cpus: float
+    eval_every: int
+
+
+def _budget_text(run: RlRun) -> str:
+    return f"{run.steps:,} steps" if run.steps is not None else f"{run.seconds:.0f} s"
+
+
+def _train_ppo_seeds(run: RlRun, options: PpoOptions, seeds: range) -> None:
+    from crowdteleop.learn.config import PPOConfig
+    from crowdteleop.learn.data import dataset_env_args
+    from crowdteleop.learn.demo_states import load_demo_states
+    from crowdteleop.learn.envs import EnvSettings
+    from crowdteleop.learn.ppo import train_ppo
+
+    with clear_errors():
+        if run.dataset is None and run.demos:
+            raise typer.BadParameter("--demos needs a --dataset to take them from")
+        if run.dataset is None and run.task is None:
+            raise typer.BadParameter("give a --dataset (or a --task for pure RL)")
+        dataset = run.dataset
+        states = load_demo_states(dataset, run.demos or None) if dataset is not None else None
+        env_args = dataset_env_args(dataset) if dataset is not None else None
+        sim_config: dict[str, object] = (
+            states.sim_config
+            if states is not None
+            else {"task": run.task, "robot": run.robot, "action_mode": "osc-pose"}
+        )
+        settings = EnvSettings(
+            sim_config=sim_config, horizon=run.horizon, demo_reset_p=run.demo_reset_p
+        )
+        for seed in seeds:
+            config = PPOConfig(
+                demos=run.demos,
+                demo_reset_p=run.demo_reset_p,
+                horizon=run.horizon,
+                total_steps=run.steps or 10**12,
+                budget_s=run.seconds,
+                n_envs=options.n_envs,
+                vec=options.vec,
+                ray_address=options.ray_address,
+                ray_actor_cpus=options.ray_actor_cpus,
+                n_steps=options.n_steps,
+                batch_size=min(256, options.n_steps * options.n_envs),
+                eval_every=options.eval_every,
+                seed=seed,
+                threads=run.threads,
+            )
+            directory = run.output / f"seed_{seed}"
+            console.print(
+                f"[bold]seed {seed}[/]: {directory} ({_budget_text(run)}, {run.demos} demos)"
+            )
+            train_ppo(
+                config,
+                settings,
+                states if run.demos else None,
+                directory,
+                resume=run.resume,
+                progress_bar=run.steps is not None,
+                dataset=run.dataset,
+                env_args=env_args,
+            )
+            _print_curve(directory)
+
+
+def _train_sac_seeds(run: RlRun, seeds: range) -> None:
     from crowdteleop.learn.config import SACConfig
     from crowdteleop.learn.data import dataset_env_args
     from crowdteleop.learn.demo_buffer import load_demo_transitions
