@@ -7,7 +7,8 @@ the scale of one 2-core machine, plus BC-RNN on the same data.
     # no BC, seeds 1 and 2 (--first-seed), the runs' results kept for `learn table` later:
     .venv/bin/python benchmarks/learning.py --out out/learning-sac --algos sac --tasks lift \
         --bc-counts "" --demo-counts 10,100 --seeds 2 --first-seed 1 --sac-budget 100k \
-        --eval-sims both --eval-episodes 20 --keep benchmarks/runs > out/learning-sac.log 2>&1 &
+        --eval-sims both --eval-episodes 20 --keep benchmarks/runs/learning-sac \
+        > out/learning-sac.log 2>&1 &
 
 1. scripted demonstrations recorded through the platform's control and recording path (the
    files workers produce), ``--demos`` successes per task, Panda with OSC;
@@ -178,7 +179,7 @@ def main(
     eval_episodes: int = 10,
     jobs: int = 2,
     plot: Path = Path("benchmarks/learning-curves.png"),
-    keep: Path | None = None,  # e.g. benchmarks/runs: the runs' results, for `learn table` later
+    keep: Path | None = None,  # e.g. benchmarks/runs/learning-sac: what learn table reads
 ) -> None:
     out.mkdir(parents=True, exist_ok=True)
     timings: dict[str, object] = {"robosuite lift step ms": robosuite_lift_step_ms()}
