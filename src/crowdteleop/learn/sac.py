@@ -17,7 +17,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.policies import ContinuousCritic
 from stable_baselines3.common.preprocessing import get_action_dim
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor
 from stable_baselines3.sac.policies import SACPolicy
 from torch import nn
 
@@ -141,7 +141,8 @@ def train_sac(
     state = begin_run(output, resume, RunInfo.of("sac", settings, config, dataset, env_args))
     model_path, buffer_path = output / "model.zip", output / "replay_buffer.pkl"
     starts = demos.starts if demos is not None else None
-    venv = DummyVecEnv([lambda: make_env(settings, starts)])
+    # VecMonitor: sb3 logs the training episodes' return (here, solved or not) only from it
+    venv = VecMonitor(DummyVecEnv([lambda: make_env(settings, starts)]), info_keywords=("success",))
     try:
         model = _model(config, venv, model_path if state else None, buffer_path)
         if demos is not None:
