@@ -81,6 +81,11 @@ def rl(
     probability --demo-reset-p, sparse reward, LSTM 100 then 300-200 for actor and critic.
     With --algo sac: SAC whose batches are half demos, its actor first cloned from them
     (docs/learning.md); a training episode ends when solved."""
+    with clear_errors():
+        if dataset is None and demos:
+            raise typer.BadParameter("--demos needs a --dataset to take them from")
+        if dataset is None and task is None:
+            raise typer.BadParameter("give a --dataset (or a --task for pure RL)")
     steps, seconds = parse_budget(budget)
     default_reset_p = {"ppo": 0.9, "sac": 0.5}[algo]
     run = RlRun(
@@ -145,10 +150,6 @@ def _train_ppo_seeds(run: RlRun, options: PpoOptions, seeds: range) -> None:
     from crowdteleop.learn.ppo import train_ppo
 
     with clear_errors():
-        if run.dataset is None and run.demos:
-            raise typer.BadParameter("--demos needs a --dataset to take them from")
-        if run.dataset is None and run.task is None:
-            raise typer.BadParameter("give a --dataset (or a --task for pure RL)")
         dataset = run.dataset
         states = load_demo_states(dataset, run.demos or None) if dataset is not None else None
         env_args = dataset_env_args(dataset) if dataset is not None else None
@@ -203,10 +204,6 @@ def _train_sac_seeds(run: RlRun, seeds: range) -> None:
     from crowdteleop.learn.sac import Demonstrations, train_sac
 
     with clear_errors():
-        if run.dataset is None and run.demos:
-            raise typer.BadParameter("--demos needs a --dataset to take them from")
-        if run.dataset is None and run.task is None:
-            raise typer.BadParameter("give a --dataset (or a --task for pure RL)")
         settings = EnvSettings(
             sim_config=(
                 load_demo_states(run.dataset, 1).sim_config
