@@ -13,10 +13,10 @@ the scale of one 2-core machine, plus BC-RNN on the same data.
 1. scripted demonstrations recorded through the platform's control and recording path (the
    files workers produce), ``--demos`` successes per task, Panda with OSC;
 2. ``crowdteleop dataset build --obs low-dim``;
-3. ``crowdteleop learn rl`` (``--algos``: ppo, sac) per task x demonstration count {0, 10, 100}
-   x seed, and ``learn
-   bc`` on 10 and 100 demos, ``--jobs`` at a time, each then ``learn eval`` (ours: the paper's
-   return over 1000 steps for PPO, success within robomimic's horizon for BC);
+3. ``crowdteleop learn rl`` (``--algos``: ppo, sac, ibrl) per task x demonstration count
+   {0, 10, 100} x seed, and ``learn bc`` on 10 and 100 demos, ``--jobs`` at a time, each then
+   ``learn eval`` (ours: the paper's return over 1000 steps for PPO, success within
+   robomimic's horizon for BC);
 4. ``crowdteleop learn table`` (Markdown) and the learning curves (PNG).
 
 Writes everything under ``--out`` (default out/learning/); logs per job in ``logs/``.
@@ -189,7 +189,7 @@ def main(
     # seed-major, so that every condition has a first seed early (and BC after it)
     ppo = ["--budget", ppo_budget, "--vec", "dummy", "--n-envs", str(n_envs), "--resume"]
     sac = ["--budget", sac_budget, "--horizon", str(sac_horizon), "--resume"]
-    options = {"ppo": ppo, "sac": sac}
+    options = {"ppo": ppo, "sac": sac, "ibrl": sac}  # ibrl: SAC's options, its own defaults
     rl_options = {algo: options[algo] for algo in algos.split(",")}
     commands: list[Job] = []
     for seed in range(first_seed, first_seed + seeds):

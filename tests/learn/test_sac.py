@@ -176,3 +176,108 @@ def test_training_episodes_can_start_in_demo_states_as_the_papers_do(lift_datase
     # normal resets start at the arm's home pose (a little joint noise); demo states anywhere
     # along the demos' reach, grasp and lift
     assert normal.std(axis=0).max() < 0.02 < demo.std(axis=0).max(), (normal, demo)
+
+
+def _ibrl(lift_dataset, output, steps: int) -> DemoSAC:
+    """IBRL trained to ``steps`` (resumed if ``output`` has a run), the actor free at once."""
+    from crowdteleop.learn.config import IBRL_SETTINGS
+    from crowdteleop.learn.sac import Demonstrations, train_sac
+
+    settings = EnvSettings(
+        sim_config=load_demo_states(lift_dataset, 1).sim_config,
+        horizon=40,
+        demo_reset_p=0.0,
+        terminate_on_success=True,
+    )
+    config = SACConfig(
+        **IBRL_SETTINGS, demos=2, total_steps=steps, warmup_steps=0, bc_steps=300, eval_every=10**6
+    )
+    demos = Demonstrations(load_demo_transitions(lift_dataset, 2, STOCK_OBS_KEYS))
+    path = train_sac(config, settings, demos, output, resume=True, dataset=lift_dataset)
+    return DemoSAC.load(str(path), device="cpu")
+
+
+def test_ibrl_keeps_the_cloned_actor_frozen_while_the_learner_moves(lift_dataset, tmp_path):
+    first = _ibrl(lift_dataset, tmp_path, 150)
+    second = _ibrl(lift_dataset, tmp_path, 300)
+    info = json.loads((tmp_path / "run.json").read_text())
+    assert info["algo"] == "ibrl" and info["config"]["imitation_bootstrap"] is True
+    frozen = [
+        torch.equal(a, b)
+        for a, b in zip(
+            first.policy.imitation.parameters(), second.policy.imitation.parameters(), strict=True
+        )
+    ]
+    moved = [
+        torch.equal(a, b)
+        for a, b in zip(first.actor.parameters(), second.actor.parameters(), strict=True)
+    ]
+    assert all(frozen) and not all(moved)
+    assert not any(p.requires_grad for p in second.policy.imitation.parameters())
+    shares = [
+        float(r["train/imitation_share"])
+        for r in csv.DictReader((tmp_path / "progress.csv").open())
+        if r.get("train/imitation_share")
+    ]
+    assert shares and all(0 <= s <= 1 for s in shares), (
+        "how often the TD target took the clone's action"
+    )
+
+
+def test_ibrl_acts_with_whichever_proposal_the_critic_values_higher(lift_dataset, tmp_path):
+    from crowdteleop.learn.sac import lowest_q
+
+    model = _ibrl(lift_dataset, tmp_path, 300)
+    obs = torch.as_tensor(load_demo_transitions(lift_dataset, 2, STOCK_OBS_KEYS).obs)
+    with torch.no_grad():
+        clone = model.policy.imitation(obs, deterministic=True)
+        learner = model.actor(obs, deterministic=True)
+        prefer_clone = lowest_q(model.critic, obs, clone) > lowest_q(model.critic, obs, learner)
+    expected = torch.where(prefer_clone, clone, learner).numpy()
+    assert not np.allclose(clone.numpy(), learner.numpy()), "the learner has moved"
+    acted, _ = model.predict(obs.numpy(), deterministic=True)
+    np.testing.assert_allclose(acted, expected, atol=1e-6)
+    # the same choice with the two networks' places swapped: the policy weighs both proposals,
+    # so one of the two places' actions was overruled somewhere
+    policy = model.policy
+    policy.actor, policy.imitation = policy.imitation, policy.actor
+    swapped, _ = model.predict(obs.numpy(), deterministic=True)
+    np.testing.assert_allclose(swapped, expected, atol=1e-6)
+
+
+def test_learn_rl_trains_ibrl_and_learn_table_names_it(lift_dataset, tmp_path):
+    output = tmp_path / "runs"
+    invoke(
+        "learn",
+        "rl",
+        "--algo",
+        "ibrl",
+        "--dataset",
+        lift_dataset,
+        "--demos",
+        2,
+        "--budget",
+        100,
+        "--horizon",
+        40,
+        "--output",
+        output,
+    )
+    info = json.loads((output / "seed_0" / "run.json").read_text())
+    assert info["algo"] == "ibrl" and info["config"]["bc_weight"] == 0
+    invoke(
+        "learn",
+        "eval",
+        output / "seed_0",
+        "--episodes",
+        1,
+        "--horizon",
+        20,
+        "--video",
+        0,
+        "--sim",
+        "ours",
+    )
+    markdown = tmp_path / "table.md"
+    invoke("learn", "table", output, "--markdown", markdown)
+    assert "SAC + IBRL (frozen clone proposes)" in markdown.read_text()

@@ -15,7 +15,7 @@ from rich.table import Table
 
 from crowdteleop.dataset.cli import clear_errors, progress_columns
 from crowdteleop.learn.actions import ActionKey
-from crowdteleop.learn.config import BCConfig, Head, VecKind
+from crowdteleop.learn.config import BCConfig, Head, RlAlgo, VecKind
 
 if TYPE_CHECKING:
     from crowdteleop.learn.evaluation import EvalReport
@@ -23,7 +23,6 @@ if TYPE_CHECKING:
 app = typer.Typer(help="Train policies on datasets and evaluate them.", no_args_is_help=True)
 console = Console(soft_wrap=True)
 SimChoice = Literal["ours", "robosuite", "both"]
-Algo = Literal["ppo", "sac"]
 BUDGET = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kKmM]?|[smh])\s*$")
 
 
@@ -74,20 +73,26 @@ def rl(
     ] = False,
     threads: Annotated[int, typer.Option(help="torch CPU threads")] = 1,
     algo: Annotated[
-        Algo, typer.Option(help="ppo: the paper's; sac: SAC with the demos in its buffer")
+        RlAlgo,
+        typer.Option(
+            help="ppo: the paper's; sac: SAC with the demos in its buffer; ibrl: sac whose "
+            "cloned actor, frozen, proposes beside the learner"
+        ),
     ] = "ppo",
 ) -> None:
     """Demonstration-guided PPO (the paper's): episodes start from demo states with
     probability --demo-reset-p, sparse reward, LSTM 100 then 300-200 for actor and critic.
     With --algo sac: SAC whose batches are half demos, its actor first cloned from them
-    (docs/learning.md); a training episode ends when solved."""
+    (docs/learning.md); a training episode ends when solved. With --algo ibrl: the same, and
+    the cloned actor, kept frozen, proposes an action beside the learner's at every step and
+    in every TD target, the critic taking the better (IBRL)."""
     with clear_errors():
         if dataset is None and demos:
             raise typer.BadParameter("--demos needs a --dataset to take them from")
         if dataset is None and task is None:
             raise typer.BadParameter("give a --dataset (or a --task for pure RL)")
     steps, seconds = parse_budget(budget)
-    default_reset_p = {"ppo": 0.9, "sac": 0.5}[algo]
+    default_reset_p = {"ppo": 0.9, "sac": 0.5, "ibrl": 0.5}[algo]
     run = RlRun(
         output,
         dataset,
@@ -102,8 +107,8 @@ def rl(
         threads,
     )
     seed_range = range(first_seed, first_seed + seeds)
-    if algo == "sac":
-        _train_sac_seeds(run, seed_range)
+    if algo != "ppo":
+        _train_sac_seeds(run, seed_range, algo)
         return
     options = PpoOptions(n_envs, vec, ray_address, n_steps, ray_actor_cpus, eval_every)
     _train_ppo_seeds(run, options, seed_range)
@@ -195,8 +200,8 @@ def _train_ppo_seeds(run: RlRun, options: PpoOptions, seeds: range) -> None:
             _print_curve(directory)
 
 
-def _train_sac_seeds(run: RlRun, seeds: range) -> None:
-    from crowdteleop.learn.config import SACConfig
+def _train_sac_seeds(run: RlRun, seeds: range, algo: RlAlgo) -> None:
+    from crowdteleop.learn.config import IBRL_SETTINGS, SACConfig
     from crowdteleop.learn.data import dataset_env_args
     from crowdteleop.learn.demo_buffer import load_demo_transitions
     from crowdteleop.learn.demo_states import load_demo_states
@@ -225,6 +230,7 @@ def _train_sac_seeds(run: RlRun, seeds: range) -> None:
         env_args = dataset_env_args(run.dataset) if run.dataset is not None else None
         for seed in seeds:
             config = SACConfig(
+                **(IBRL_SETTINGS if algo == "ibrl" else {}),
                 demos=run.demos,
                 horizon=run.horizon,
                 total_steps=run.steps or 10**12,
@@ -233,7 +239,7 @@ def _train_sac_seeds(run: RlRun, seeds: range) -> None:
                 threads=run.threads,
             )
             directory = run.output / f"seed_{seed}"
-            console.print(f"[bold]seed {seed}[/]: {directory} (SAC, {run.demos} demos)")
+            console.print(f"[bold]seed {seed}[/]: {directory} ({algo}, {run.demos} demos)")
             train_sac(
                 config,
                 settings,

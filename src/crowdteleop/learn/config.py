@@ -10,6 +10,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from crowdteleop.learn.actions import ActionKey
 
 Head = Literal["gmm", "deterministic"]
+# what `learn rl --algo` trains: the paper's PPO, SAC with demos in its buffer, SAC with IBRL
+RlAlgo = Literal["ppo", "sac", "ibrl"]
 
 # robomimic's stock low-dim observation keys, in the order they are concatenated.
 STOCK_OBS_KEYS = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos", "object")
@@ -94,7 +96,8 @@ class SACConfig(BaseModel):
     deterministic head), and the critic trained alone for ``warmup_steps`` before the actor
     follows it, so a random critic does not first undo what BC taught. The reward is the
     task's sparse one; a training episode ends at its first solved step. With no demos it is
-    plain SAC (random actions for ``learning_starts`` steps, entropy tuned from 1)."""
+    plain SAC (random actions for ``learning_starts`` steps first), its entropy weight as
+    fixed."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -123,8 +126,29 @@ class SACConfig(BaseModel):
     bc_log_std: float = Field(-1.5, description="the exploration the BC actor starts with")
     warmup_steps: int = Field(5000, ge=0, description="env steps the critic learns alone")
     bc_weight: float = Field(10.0, ge=0, description="a BC step on demos after each actor step")
+    imitation_bootstrap: bool = Field(
+        False, description="IBRL: the cloned actor, frozen, proposes beside the learner"
+    )
+    max_return: float | None = Field(
+        None, gt=0, description="IBRL's TD targets clipped to [0, this]; None: unclipped"
+    )
     eval_every: int = Field(10_000, ge=1, description="env steps between learning-curve points")
     eval_episodes: int = Field(10, ge=1, description="normal-reset episodes per curve point")
     checkpoint_every: int = Field(20_000, ge=1, description="env steps between checkpoints")
     seed: int = Field(0, ge=0)
     threads: int = Field(1, ge=1, description="torch CPU threads")
+
+
+# IBRL (Hu et al. 2023): SAC whose cloned actor, kept frozen, proposes an action beside the
+# learner's at every step and in every TD target, the critic taking the better; the learner
+# then follows the critic alone at the critic's pace, since the frozen copy keeps what
+# cloning taught (the cloning step and the slow actor were there to keep it).
+# Its targets are clipped to the task's returns (a reward of 1 that ends the episode): the
+# max over two proposals overrates, and without the clip the critic's estimates reached 100
+# on lift within 60k steps.
+IBRL_SETTINGS: dict[str, object] = {
+    "imitation_bootstrap": True,
+    "max_return": 1.0,
+    "bc_weight": 0.0,
+    "actor_learning_rate": None,
+}

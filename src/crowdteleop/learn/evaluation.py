@@ -317,7 +317,7 @@ def load_runner(run: Path) -> tuple[PolicyRunner, dict[str, object]]:
     from stable_baselines3 import SAC
 
     info = json.loads((run / "run.json").read_text())
-    algorithm = SAC if info.get("algo") == "sac" else RecurrentPPO
+    algorithm = RecurrentPPO if info.get("algo") == "ppo" else SAC
     model = algorithm.load(str(run / "model.zip"), device="cpu")
     normalizer = None
     if (run / "vecnormalize.pkl").exists():

@@ -12,14 +12,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.policies import ContinuousCritic
 from stable_baselines3.common.preprocessing import get_action_dim
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
+from stable_baselines3.common.type_aliases import PyTorchObs, ReplayBufferSamples, Schedule
+from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor
 from stable_baselines3.sac.policies import SACPolicy
 from torch import nn
+from torch.nn import functional
 
 from crowdteleop.learn.config import SACConfig
 from crowdteleop.learn.demo_buffer import DemoReplayBuffer, DemoTransitions
@@ -55,13 +59,52 @@ class LayerNormCritic(ContinuousCritic):
 
 
 class LayerNormSACPolicy(SACPolicy):
-    """SAC's policy with `LayerNormCritic`."""
+    """SAC's policy with `LayerNormCritic`; with ``imitation_bootstrap`` (IBRL, Hu et al.
+    2023), also a frozen copy of the cloned actor (`imitation`) whose action is taken instead
+    of the learner's wherever the critic values it higher, in training and in evaluation."""
+
+    def __init__(self, *args: Any, imitation_bootstrap: bool = False, **kwargs: Any) -> None:
+        self.imitation_bootstrap = imitation_bootstrap  # before super() builds the networks
+        super().__init__(*args, **kwargs)
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        super()._build(lr_schedule)
+        self.imitation = self.make_actor(features_extractor=None)
+        self.imitation.requires_grad_(False)
 
     def make_critic(
         self, features_extractor: BaseFeaturesExtractor | None = None
     ) -> ContinuousCritic:
         kwargs = self._update_features_extractor(self.critic_kwargs, features_extractor)
         return LayerNormCritic(**kwargs).to(self.device)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {
+            **super()._get_constructor_parameters(),
+            "imitation_bootstrap": self.imitation_bootstrap,
+        }
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> torch.Tensor:
+        action: torch.Tensor = self.actor(observation, deterministic)
+        if not self.imitation_bootstrap:
+            return action
+        return self.better_of(observation, action, self.critic)[0]
+
+    def better_of(
+        self, observation: PyTorchObs, action: torch.Tensor, critic: ContinuousCritic
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per row, the imitation's action or ``action``, whichever ``critic`` (the lower of
+        its estimates) values higher; and where the imitation's was taken."""
+        imitation = self.imitation(observation, deterministic=True)
+        taken = lowest_q(critic, observation, imitation) > lowest_q(critic, observation, action)
+        return torch.where(taken, imitation, action), taken
+
+
+def lowest_q(
+    critic: ContinuousCritic, observation: PyTorchObs, action: torch.Tensor
+) -> torch.Tensor:
+    """The lowest of the critic's estimates, a column."""
+    return torch.cat(critic(observation, action), dim=1).min(dim=1, keepdim=True).values
 
 
 class DemoSAC(SAC):
@@ -73,6 +116,7 @@ class DemoSAC(SAC):
     warmup_steps: int = 0
     bc_weight: float = 0.0
     actor_learning_rate: float | None = None  # None: the critic's
+    max_return: float | None = None  # IBRL's TD targets clipped to [0, max_return]
 
     def _update_learning_rate(self, optimizers: Any) -> None:
         super()._update_learning_rate(optimizers)
@@ -84,7 +128,10 @@ class DemoSAC(SAC):
                 group["lr"] = rate
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        super().train(gradient_steps, batch_size)
+        if self.bootstrapped.imitation_bootstrap:
+            self._train_bootstrapped(gradient_steps, batch_size)
+        else:
+            super().train(gradient_steps, batch_size)
         buffer = self.replay_buffer
         if self.bc_weight <= 0 or not isinstance(buffer, DemoReplayBuffer) or buffer.demos is None:
             return
@@ -93,6 +140,57 @@ class DemoSAC(SAC):
         for _ in range(gradient_steps):
             batch = buffer.demo_batch(batch_size)
             clone_step(self, batch.observations, batch.actions, self.bc_weight)
+
+    @property
+    def bootstrapped(self) -> LayerNormSACPolicy:
+        if not isinstance(self.policy, LayerNormSACPolicy):
+            raise TypeError(f"a DemoSAC's policy is a LayerNormSACPolicy, not {self.policy}")
+        return self.policy
+
+    def _train_bootstrapped(self, gradient_steps: int, batch_size: int) -> None:
+        """SAC's update (`SAC.train`, with the fixed entropy weight) whose TD target takes, at
+        the next state, the imitation's action where the target critic values it higher."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
+        critic_losses, actor_losses, imitation_shares = [], [], []
+        for _ in range(gradient_steps):
+            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            target, taken = self._bootstrapped_target(data)
+            current = self.critic(data.observations, data.actions)
+            critic_loss = 0.5 * torch.stack([functional.mse_loss(q, target) for q in current]).sum()
+            _step(self.critic.optimizer, critic_loss)
+            actions, log_prob = self.actor.action_log_prob(data.observations)
+            lowest = lowest_q(self.critic, data.observations, actions)
+            actor_loss = (self.ent_coef_tensor * log_prob.reshape(-1, 1) - lowest).mean()
+            _step(self.actor.optimizer, actor_loss)
+            polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+            critic_losses.append(critic_loss.item())
+            actor_losses.append(actor_loss.item())
+            imitation_shares.append(float(taken.float().mean()))
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/critic_loss", np.mean(critic_losses))
+        self.logger.record("train/actor_loss", np.mean(actor_losses))
+        self.logger.record("train/imitation_share", np.mean(imitation_shares))
+
+    def _bootstrapped_target(self, data: ReplayBufferSamples) -> tuple[torch.Tensor, torch.Tensor]:
+        with torch.no_grad():
+            learner, log_prob = self.actor.action_log_prob(data.next_observations)
+            chosen, taken = self.bootstrapped.better_of(
+                data.next_observations, learner, self.critic_target
+            )
+            entropy = torch.where(taken, 0.0, -self.ent_coef_tensor * log_prob.reshape(-1, 1))
+            next_q = lowest_q(self.critic_target, data.next_observations, chosen) + entropy
+            target = data.rewards + (1 - data.dones) * self.gamma * next_q
+            if self.max_return is not None:
+                target = target.clamp(0.0, self.max_return)
+            return target, taken
+
+
+def _step(optimizer: torch.optim.Optimizer, loss: torch.Tensor) -> None:
+    optimizer.zero_grad()
+    loss.backward()  # type: ignore[no-untyped-call]  # torch leaves it untyped
+    optimizer.step()
 
 
 def clone_step(model: SAC, obs: torch.Tensor, actions: torch.Tensor, weight: float) -> float:
@@ -138,7 +236,8 @@ def train_sac(
     count toward the budget); one without starts afresh. With ``demos.starts``, a training
     episode begins in a demo's state with ``settings.demo_reset_p``, as the paper's PPO's do."""
     torch.set_num_threads(config.threads)
-    state = begin_run(output, resume, RunInfo.of("sac", settings, config, dataset, env_args))
+    algo = "ibrl" if config.imitation_bootstrap else "sac"  # with 0 demos, both plain SAC
+    state = begin_run(output, resume, RunInfo.of(algo, settings, config, dataset, env_args))
     model_path, buffer_path = output / "model.zip", output / "replay_buffer.pkl"
     starts = demos.starts if demos is not None else None
     # VecMonitor: sb3 logs the training episodes' return (here, solved or not) only from it
@@ -149,6 +248,7 @@ def train_sac(
             _attach(model, demos.transitions, config)
             if not state:
                 pretrain_actor(model, demos.transitions, config)
+                model.bootstrapped.imitation.load_state_dict(model.actor.state_dict())
         learn_to_budget(model, settings, config, output, state, progress_bar)
         model.save_replay_buffer(str(buffer_path))
     finally:
@@ -176,11 +276,15 @@ def _model(config: SACConfig, venv: VecEnv, saved: Path | None, buffer: Path) ->
         replay_buffer_class=DemoReplayBuffer,
         seed=config.seed,
         device="cpu",
-        policy_kwargs={"net_arch": list(config.net_arch)},
+        policy_kwargs={
+            "net_arch": list(config.net_arch),
+            "imitation_bootstrap": config.imitation_bootstrap and with_demos,
+        },
     )
     model.warmup_steps = config.warmup_steps if with_demos else 0
     model.bc_weight = config.bc_weight if with_demos else 0.0
     model.actor_learning_rate = config.actor_learning_rate
+    model.max_return = config.max_return
     return model
 
 

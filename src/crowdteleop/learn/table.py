@@ -9,13 +9,15 @@ import json
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, get_args
 
 import numpy as np
 import numpy.typing as npt
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
+
+from crowdteleop.learn.config import RlAlgo
 
 # The paper's Table 1: return out of 1000 after 24 h (can) / 48 h (round nut), 10 seeds.
 PAPER_TABLE = {
@@ -37,8 +39,13 @@ PAPER_TABLE = {
 
 
 # what each run.json's ``algo`` is called in the tables
-METHODS = {"ppo": "demo-guided PPO", "sac": "SAC, demos in its buffer", "bc": "BC-RNN"}
-RL_ALGOS = ("ppo", "sac")  # the runs that train by interaction, with curves and step counts
+METHODS = {
+    "ppo": "demo-guided PPO",
+    "sac": "SAC, demos in its buffer",
+    "ibrl": "SAC + IBRL (frozen clone proposes)",
+    "bc": "BC-RNN",
+}
+RL_ALGOS = get_args(RlAlgo)  # the runs that train by interaction, with curves and step counts
 
 Curve = tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]  # steps, success rate
 
