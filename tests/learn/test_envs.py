@@ -140,3 +140,28 @@ def test_plain_robosuite_gives_the_same_camera_observations(demos, scene):
     finally:
         for env in envs:
             env.close()
+
+
+def test_plain_robosuites_first_observation_places_the_can_relative_to_the_hand():
+    """robosuite's own reset gives zeros for the object-to-hand sensors of pick-place (its
+    cache is emptied and they read the object's pose before it is refilled); a policy's first
+    input in plain robosuite is the scene's, as in ours and in the datasets."""
+    from crowdteleop.provenance.env_args import EnvArgs
+    from crowdteleop.recording.metadata import robosuite_version
+    from crowdteleop.sim import SimConfig
+
+    config = SimConfig(task="pick-place-can", robot="Panda", action_mode="osc-pose")
+    scene = robosuite_scene(EnvArgs.of(config, robosuite_version()).model_dump(mode="json"))
+    settings = EnvSettings(sim_config=config.model_dump(mode="json"))
+    env = make_env(settings, sim="robosuite", scene=scene)
+    try:
+        for seed in (0, 1):
+            env.reset(seed=seed)
+            named = env.named_observations()
+            can, hand = named["object"][7:10], named["robot0_eef_pos"]  # Can_pos, the hand
+            relative = named["object"][0:3]  # Can_to_robot0_eef_pos, in the hand's frame
+            distance = np.linalg.norm(can - hand)
+            assert distance > 0.05
+            assert np.linalg.norm(relative) == pytest.approx(distance, abs=1e-3)
+    finally:
+        env.close()

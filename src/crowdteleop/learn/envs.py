@@ -386,7 +386,12 @@ class PlainRobosuite:
     def reset(self, seed: int) -> None:
         # in place: robosuite's placement samplers hold a reference to env.rng
         self.env.rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
-        self._obs = dict(self.env.reset())
+        self.env.reset()
+        # robosuite's reset empties its observation cache, and an object-to-hand sensor reads
+        # the object's pose from that cache before the object's own sensor refills it: the
+        # first observation's e.g. Can_to_robot0_eef_pos is zeros (pick-place, not lift), an
+        # input no training step has. Asked again, robosuite gives the scene's, as ours does.
+        self._obs = dict(self.env._get_observations(force_update=True))
 
     def step(self, action: Array) -> None:
         if not self._absolute:
