@@ -264,7 +264,7 @@ def test_learn_rl_trains_ibrl_and_learn_table_names_it(lift_dataset, tmp_path):
         output,
     )
     info = json.loads((output / "seed_0" / "run.json").read_text())
-    assert info["algo"] == "ibrl" and info["config"]["bc_weight"] == 0
+    assert info["algo"] == "ibrl" and info["config"]["imitation_bootstrap"] is True
     invoke(
         "learn",
         "eval",
