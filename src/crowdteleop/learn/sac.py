@@ -197,9 +197,7 @@ def clone_step(model: SAC, obs: torch.Tensor, actions: torch.Tensor, weight: flo
     """One gradient step of the actor's mean toward ``actions`` (squared error)."""
     mean, _, _ = model.actor.get_action_dist_params(obs)
     loss = weight * ((torch.tanh(mean) - actions) ** 2).mean()
-    model.actor.optimizer.zero_grad()
-    loss.backward()  # type: ignore[no-untyped-call]  # torch leaves it untyped
-    model.actor.optimizer.step()
+    _step(model.actor.optimizer, loss)
     return float(loss.detach())
 
 
@@ -215,9 +213,7 @@ def pretrain_actor(model: SAC, demos: DemoTransitions, config: SACConfig) -> flo
         mean, log_std, _ = model.actor.get_action_dist_params(obs[rows])
         loss = ((torch.tanh(mean) - actions[rows]) ** 2).mean()
         loss = loss + 0.1 * ((log_std - config.bc_log_std) ** 2).mean()
-        optimizer.zero_grad()
-        loss.backward()  # type: ignore[no-untyped-call]  # torch leaves it untyped
-        optimizer.step()
+        _step(optimizer, loss)
     return float(loss.detach())
 
 
