@@ -428,6 +428,7 @@ def _eval_bc(
                     )
                 )
     console.print(results_table(reports))
+    print_simulator_errors(reports)
     target = output or checkpoint.with_name("eval.json")
     result = {
         "checkpoint": str(checkpoint),
@@ -476,6 +477,7 @@ def _eval_ppo(
             str(report.horizon),
         )
     console.print(table)
+    print_simulator_errors(reports)
     target = run / "eval.json"
     summaries = {r.sim: r.summary() for r in reports}
     target.write_text(json.dumps({"checkpoint": str(run), "results": summaries}, indent=2))
@@ -504,6 +506,18 @@ def table(
     if plot is not None and any(r.algo in RL_ALGOS for r in results):
         plot_curves(results, plot)
         console.print(f"written: {plot}")
+
+
+def print_simulator_errors(reports: list[EvalReport]) -> None:
+    """Episodes the simulator aborted, said once each: they count as they stood then."""
+    for report in reports:
+        if report.errors:
+            console.print(
+                f"[yellow]{len(report.errors)} of {len(report.episodes)} episodes in "
+                f"{report.sim} ended on a simulator error (counted as they stood):[/yellow]"
+            )
+            for line in report.errors:
+                console.print(f"  {line}", markup=False)
 
 
 def results_table(reports: list[EvalReport]) -> Table:

@@ -67,6 +67,7 @@ class Episode:
     first_success_step: int | None
     episode_return: float  # solved steps (the sparse reward's sum)
     trace: Trace | None = None
+    error: str | None = None  # the simulator aborted the episode here (MuJoCo's fatal error)
 
 
 @dataclass(frozen=True)
@@ -84,6 +85,11 @@ class EvalReport:
     @property
     def success_rate(self) -> float:
         return self.successes / max(1, len(self.episodes))
+
+    @property
+    def errors(self) -> list[str]:
+        """Why each episode the simulator aborted ended (one line per episode)."""
+        return [f"seed {e.seed}, step {e.steps}: {e.error}" for e in self.episodes if e.error]
 
     @property
     def mean_steps_to_success(self) -> float | None:
@@ -107,6 +113,7 @@ class EvalReport:
             "successes": self.successes,
             "success_rate": self.success_rate,
             "mean_steps_to_success": self.mean_steps_to_success,
+            "simulator_errors": len(self.errors),
         }
         if not self.stops_at_success:
             summary |= {"mean_return": self.mean_return, "std_return": self.std_return}
@@ -123,6 +130,8 @@ class EvalReport:
         }
         if not self.stops_at_success:
             row["episode_return"] = episode.episode_return
+        if episode.error is not None:
+            row["error"] = episode.error
         return row
 
 
@@ -167,6 +176,11 @@ def run_episode(
     trace: bool = False,
     frames: list[Image] | None = None,
 ) -> Episode:
+    """One rollout. A policy can drive MuJoCo into a state it aborts on (e.g. more contacts
+    for a geom pair than its collision function allows, seen in plain robosuite): the episode
+    then ends there, with what it reached and the error, and the next one runs."""
+    import mujoco
+
     obs, _ = env.reset(seed=seed)
     agent.reset(seed)
     record: Trace | None = {key: [] for key in (*TRACE_KEYS, "action")} if trace else None
@@ -178,7 +192,10 @@ def run_episode(
             for key in TRACE_KEYS:
                 record[key].append(named[key].tolist())
             record["action"].append(np.asarray(action).tolist())
-        obs, reward, terminated, truncated, info = env.step(action)
+        try:
+            obs, reward, terminated, truncated, info = env.step(action)
+        except mujoco.FatalError as error:
+            return Episode(seed, first is not None, steps, first, total, record, str(error))
         steps += 1
         total += float(reward)
         if info["success"] and first is None:
