@@ -114,6 +114,16 @@ def test_the_table_lays_runs_out_as_the_papers_table_1(run, tmp_path):
     assert plot.stat().st_size > 10_000
 
 
+def test_the_table_of_plain_robosuites_evaluation_says_so(run, tmp_path):
+    seed_dir, _ = run
+    if "robosuite" not in json.loads((seed_dir / "eval.json").read_text())["results"]:
+        invoke("learn", "eval", seed_dir, "--episodes", 1, "--horizon", 20, "--sim", "robosuite")
+    markdown = tmp_path / "table.md"
+    invoke("learn", "table", seed_dir.parent, "--sim", "robosuite", "--markdown", markdown)
+    text = markdown.read_text()
+    assert "| lift (plain robosuite) | demo-guided PPO |" in text and "(ours)" not in text
+
+
 def test_a_bad_budget_is_named_in_the_error(lift_dataset, tmp_path):
     result = runner.invoke(
         app,

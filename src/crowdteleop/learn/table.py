@@ -45,6 +45,8 @@ METHODS = {
     "ibrl": "SAC + IBRL (frozen clone proposes)",
     "bc": "BC-RNN",
 }
+# how a row names the simulation its runs were evaluated in (``learn eval --sim``)
+SIM_LABELS = {"ours": "ours", "robosuite": "plain robosuite"}
 RL_ALGOS = get_args(RlAlgo)  # the runs that train by interaction, with curves and step counts
 
 Curve = tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]  # steps, success rate
@@ -145,10 +147,11 @@ def markdown(results: list[RunResult]) -> str:
         "| task | method | " + " | ".join("None" if c == 0 else str(c) for c in counts) + " |",
         "|---|---|" + "---|" * len(counts),
     ]
+    where = " and ".join(sorted({SIM_LABELS.get(r.sim, r.sim) for r in results}))
     for (algo, task), row in table.items():
         method = METHODS.get(algo, algo)
         lines.append(
-            f"| {task} (ours) | {method} | "
+            f"| {task} ({where}) | {method} | "
             + " | ".join(row[c].text() if c in row else "" for c in counts)
             + " |"
         )
