@@ -55,8 +55,10 @@ class PPOConfig(BaseModel):
     """One demonstration-guided PPO run as the paper's Appendix sets it: 100-step training
     episodes, sparse reward, a start from a demonstration's state with probability 0.9, an
     actor and a critic each of LSTM 100 then fully connected 300 and 200, a Gaussian with a
-    learned state-independent log-std. The rest are PPO's usual settings (sb3's defaults where
-    SURREAL's are not stated)."""
+    learned state-independent log-std. The paper leaves the rest to SURREAL (Fan et al. 2018),
+    whose PPO starts that log-std at -1.0 (``init_log_sig`` in its ``ppo_configs.py``: a
+    standard deviation of 0.37 in actions of [-1, 1]); the others are PPO's usual settings
+    (sb3's defaults)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -80,7 +82,7 @@ class PPOConfig(BaseModel):
     gae_lambda: float = Field(0.95, gt=0, le=1)
     clip_range: float = Field(0.2, gt=0)
     ent_coef: float = Field(0.0, ge=0)
-    log_std_init: float = Field(-0.5, description="initial log standard deviation")
+    log_std_init: float = Field(-1.0, description="initial log standard deviation (SURREAL's)")
     normalize_obs: bool = Field(True, description="running observation standardization")
     eval_every: int = Field(10_000, ge=1, description="env steps between learning-curve points")
     eval_episodes: int = Field(10, ge=1, description="normal-reset episodes per curve point")
