@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import csv
 import json
+from dataclasses import replace
 
+import numpy as np
 import pytest
 import torch
 from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
@@ -15,7 +17,12 @@ from typer.testing import CliRunner
 
 from crowdteleop.cli import app
 from crowdteleop.learn.cli import parse_budget
+from crowdteleop.learn.config import PPOConfig
+from crowdteleop.learn.demo_states import DemoStates, load_demo_states
+from crowdteleop.learn.envs import EnvSettings
+from crowdteleop.learn.ppo import normalized_env
 from crowdteleop.learn.ppo_policy import process_sequence
+from crowdteleop.learn.vec import make_vec_env
 
 runner = CliRunner()
 
@@ -48,6 +55,40 @@ def test_budgets_read_as_steps_or_wall_time():
     assert parse_budget("1.5M") == (1_500_000, None)
     assert parse_budget("30m") == (None, 1800.0)
     assert parse_budget("2h") == (None, 7200.0)
+
+
+def solved_episode(dataset, normalize_reward: bool, steps: int = 8):
+    """An episode started in a demo's last (solved) state, its last action held: the rewards
+    the learner saw, the task's own ones, and the return the training log counts."""
+    demos = load_demo_states(dataset, 1)
+    last = [
+        replace(d, states=d.states[-1:], controller_states=d.controller_states[-1:])
+        for d in demos.demos
+    ]
+    settings = EnvSettings(sim_config=demos.sim_config, horizon=steps, demo_reset_p=1.0)
+    config = PPOConfig(normalize_reward=normalize_reward)
+    venv = normalized_env(make_vec_env(settings, DemoStates(last), 1, "dummy", 0), config, None)
+    try:
+        venv.reset()
+        action = demos.demos[0].actions[-1:].astype(np.float32)
+        seen, own, logged = [], [], None
+        for _ in range(steps):
+            _, reward, _, infos = venv.step(action)
+            seen.append(float(reward[0]))
+            own.append(float(venv.get_original_reward()[0]))
+            logged = infos[0].get("episode", {}).get("r", logged)
+        return seen, own, logged
+    finally:
+        venv.close()
+
+
+def test_the_learner_sees_scaled_rewards_while_the_log_counts_the_tasks_own(lift_dataset):
+    seen, own, logged = solved_episode(lift_dataset, normalize_reward=True)
+    assert own == [1.0] * len(own), "a held, lifted cube is solved at every step"
+    assert logged == sum(own), "the training return is the task's own"
+    assert all(0 < r <= 10 for r in seen) and seen != own, "the critic's rewards are scaled"
+    seen, own, _ = solved_episode(lift_dataset, normalize_reward=False)
+    assert seen == own
 
 
 @pytest.fixture(scope="module")

@@ -47,7 +47,7 @@ def train_ppo(
         config.ray_actor_cpus,
     )
     try:
-        venv = _normalized(venv, config, norm_path if state else None)
+        venv = normalized_env(venv, config, norm_path if state else None)
         model = _model(config, venv, model_path if state else None)
         learn_to_budget(model, settings, config, output, state, progress_bar)
     finally:
@@ -55,14 +55,22 @@ def train_ppo(
     return model_path
 
 
-def _normalized(venv: VecEnv, config: PPOConfig, saved: Path | None) -> VecEnv:
-    if not config.normalize_obs:
+def normalized_env(venv: VecEnv, config: PPOConfig, saved: Path | None) -> VecEnv:
+    """The environments behind sb3's running normalizer of observations and/or rewards; the
+    reward scale uses the run's own discount, as the returns it estimates do."""
+    if not (config.normalize_obs or config.normalize_reward):
         return venv
     if saved is not None and saved.exists():
         loaded = VecNormalize.load(str(saved), venv)
         loaded.training = True
         return loaded
-    return VecNormalize(venv, norm_obs=True, norm_reward=False, clip_obs=10.0)
+    return VecNormalize(
+        venv,
+        norm_obs=config.normalize_obs,
+        norm_reward=config.normalize_reward,
+        clip_obs=10.0,
+        gamma=config.gamma,
+    )
 
 
 def _model(config: PPOConfig, venv: VecEnv, saved: Path | None) -> RecurrentPPO:
