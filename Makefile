@@ -19,7 +19,7 @@ test: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks
 	$(VENV)/bin/mypy  # src/, as configured in pyproject.toml (strict on the seams)
 	CROWDTELEOP_PYTHON=$(PY) node --test tests/web/  # the pages' JS: schema validator, protocol, latency
-	$(PY) -m pytest -n 3 --dist loadscope $(PYTEST_ARGS)  # a module per worker (3 on 2 cores: the suite waits more than it computes), Ray's first (tests/fixtures/schedule.py); timed tests alone
+	$(PY) -m pytest -n 2 --dist loadscope $(PYTEST_ARGS)  # a module per worker, Ray's first (tests/fixtures/schedule.py); timed tests alone
 
 ## The quick loop while coding: lint, types, and every test not marked slow.
 quick: $(STAMP)

@@ -1,4 +1,4 @@
-"""The lock that lets `make test` run several workers: a test that measures time is alone in the
+"""The lock that lets `make test` run two workers: a test that measures time is alone in the
 room, the others share it (tests/fixtures/exclusive.py)."""
 
 from __future__ import annotations

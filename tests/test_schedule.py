@@ -1,4 +1,4 @@
-"""`make test`'s workers: the modules that share Ray are one unit, handed out first, and
+"""`make test`'s two workers: the modules that share Ray are one unit, handed out first, and
 slow modules before quick ones (tests/fixtures/schedule.py)."""
 
 from __future__ import annotations
