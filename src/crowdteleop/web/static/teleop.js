@@ -11,6 +11,8 @@ import { XrScreen } from "./xr_screen.js";
 
 const $ = (id) => document.getElementById(id);
 const HEARTBEAT_MS = 5000;
+const FEEDBACK_WAIT_MS = 10000;  // the last demonstration's feedback, at most this late
+const REDIRECT_DELAY_MS = 8000;  // the completion code shown, then on to the study's page
 const SEND_HZ = 30;
 
 // All of the page's state, declared here and sealed: a typo'd or new field throws instead of
@@ -32,6 +34,7 @@ class TeleopPage {
     this.tookControlAtMs = 0;  // performance.now() of our last take_control
     this.tookControlForScript = false;
     this.ended = false;
+    this.pendingFeedback = null;  // a saved success's episode whose feedback has not come yet
     this.ready = false;
     this.readyAt = null;  // the view's ready_at of the robot we are connected to
     this.timeline = { loaded: Date.now() };  // wall-clock ms marks of the way to the first frame
@@ -138,9 +141,28 @@ function finish(view) {
     link.href = view.redirect_url;
     link.textContent = " Return to Prolific";
     done.append(link);
-    setTimeout(() => { location.href = view.redirect_url; }, 8000);
   }
-  if (page.connection) page.connection.close();
+  lastFeedback().then(() => {
+    if (page.connection) page.connection.close();
+    if (view.redirect_url) setTimeout(() => { location.href = view.redirect_url; }, REDIRECT_DELAY_MS);
+  });
+}
+
+// The last demonstration's feedback comes over the data channel once the coordinator has
+// counted it, and the coordinator's view may say "done" a moment before: keep the channel
+// open for it, and leave for the study's page only once the worker could read it.
+function lastFeedback() {
+  const c = page.connection;
+  if (page.pendingFeedback === null || !c) return Promise.resolve();
+  return new Promise((resolve) => {
+    const arrived = () => {
+      clearTimeout(timer);
+      c.removeEventListener("feedback", arrived);
+      resolve();
+    };
+    const timer = setTimeout(arrived, FEEDBACK_WAIT_MS);
+    c.addEventListener("feedback", arrived);
+  });
 }
 
 async function heartbeat() {
@@ -255,9 +277,15 @@ function showStatus() {
   c.addEventListener("haptic", ({ detail }) => {
     if (page.device === page.devices.vr) page.devices.vr.pulse(detail.intensity);
   });
-  c.addEventListener("feedback", ({ detail }) => showFeedback(detail));
+  c.addEventListener("feedback", ({ detail }) => {
+    page.pendingFeedback = null;
+    showFeedback(detail);
+  });
   c.addEventListener("saved", ({ detail }) => {
-    if (detail.outcome === "success") banner("info", "Demonstration saved. Thank you!");
+    if (detail.outcome === "success") {
+      page.pendingFeedback = detail.episode;
+      banner("info", "Demonstration saved. Thank you!");
+    }
     heartbeat();
   });
   c.addEventListener("error", ({ detail }) => {
