@@ -29,7 +29,7 @@ from rich.table import Table
 from crowdteleop.learn.actions import ActionKey
 from crowdteleop.learn.bc import EpochLog, load_checkpoint, train_bc
 from crowdteleop.learn.cli import results_table
-from crowdteleop.learn.config import BCConfig, Head
+from crowdteleop.learn.config import BCConfig, Head, ObsRotation
 from crowdteleop.learn.envs import SIM_NAMES, robosuite_scene
 from crowdteleop.learn.evaluation import Episode, EvalReport, evaluate_checkpoint
 from crowdteleop.vocab import ControllerName
@@ -152,6 +152,7 @@ def main(
     actions: ActionKey = "actions",
     lr: float = 1e-4,
     normalize_obs: bool = False,
+    obs_rotation: ObsRotation = "quaternion",
     save_every: int = 0,
     rnn_horizon: int | None = None,
     eval_seed: int = 1000,
@@ -173,6 +174,7 @@ def main(
         "head": head,
         "actions": actions,
         "lr": lr,
+        "obs_rotation": obs_rotation,
     }
     if not (reuse and dataset.exists()):
         attempts, seconds = record(task, controller, robot, demos, out / "episodes")
@@ -187,6 +189,7 @@ def main(
             actions=actions,
             learning_rate=lr,
             normalize_obs=normalize_obs,
+            obs_rotation=obs_rotation,
             save_every=save_every,
         )
 

@@ -27,9 +27,13 @@ def to_learned(actions: Array, key: ActionKey) -> Array:
     """(N, A) recorded rows in the form the policy learns: ``actions_abs`` (N, 7) -> (N, 10)."""
     if key == "actions":
         return actions
-    matrices = Rotation.from_rotvec(actions[:, 3:6]).as_matrix()
-    six = matrices[:, :, :2].transpose(0, 2, 1).reshape(len(actions), 6)
+    six = six_d(Rotation.from_rotvec(actions[:, 3:6]).as_matrix())
     return np.concatenate([actions[:, :3], six, actions[:, 6:]], axis=1)
+
+
+def six_d(matrices: Array) -> Array:
+    """(N, 3, 3) rotation matrices -> (N, 6): the first column, then the second."""
+    return matrices[:, :, :2].transpose(0, 2, 1).reshape(len(matrices), 6)
 
 
 def from_learned(row: Array, key: ActionKey) -> Array:

@@ -28,7 +28,9 @@ from crowdteleop.learn.data import (
     SequenceSampler,
     load_learn_data,
 )
+from crowdteleop.learn.envs import robosuite_scene
 from crowdteleop.learn.model import RNNPolicyNet, RNNState
+from crowdteleop.learn.observations import ObservationForm, observation_form
 
 CHECKPOINT_FORMAT = "crowdteleop-bc-rnn"
 CHECKPOINT_VERSION = 1
@@ -96,6 +98,14 @@ def _training_data(dataset: Path, config: BCConfig) -> LearnData:
     return replace(data, train=data.train[: config.max_demos])
 
 
+def _observation_form(data: LearnData, config: BCConfig) -> ObservationForm:
+    """How the policy sees the dataset's observations (`BCConfig.obs_rotation`)."""
+    scene = None
+    if config.obs_rotation != "quaternion" and data.env_args:
+        scene = robosuite_scene(data.env_args)
+    return observation_form(config.obs_rotation, data.obs_keys, data.obs_dims, scene)
+
+
 def _train_epoch(
     net: RNNPolicyNet,
     optimizer: torch.optim.Optimizer,
@@ -133,10 +143,14 @@ def train_bc(
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
     data = _training_data(dataset, config)
+    form = _observation_form(data, config)
+    data = replace(
+        data, train=[form.demo(d) for d in data.train], valid=[form.demo(d) for d in data.valid]
+    )
     norm = Normalisation.fit(data.train, config.normalize_obs)
     train = SequenceSampler([norm.demo(d) for d in data.train], config.seq_length)
     valid = SequenceSampler([norm.demo(d) for d in data.valid], config.seq_length)
-    net = RNNPolicyNet(sum(data.obs_dims), data.action_dim, config)
+    net = RNNPolicyNet(form.learned_dim, data.action_dim, config)
     optimizer = torch.optim.Adam(
         net.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
     )
@@ -162,9 +176,9 @@ def train_bc(
             report.epochs.append(row)
             if valid_loss is not None and valid_loss < best_valid:
                 best_valid = valid_loss
-                _save(output / "model_best_valid.pt", net, config, data, norm, _meta(row))
+                _save(output / "model_best_valid.pt", net, (config, data, form), norm, _meta(row))
             if config.save_every and epoch % config.save_every == 0:
-                _save(output / f"epoch_{epoch}.pt", net, config, data, norm, _meta(row))
+                _save(output / f"epoch_{epoch}.pt", net, (config, data, form), norm, _meta(row))
             _keep(
                 output / RESUME_FILE, net, optimizer, rng, _Progress(epoch, best_valid, row.seconds)
             )
@@ -173,14 +187,8 @@ def train_bc(
             if on_epoch is not None:
                 on_epoch(row)
     seconds = time.perf_counter() - started
-    _save(
-        report.checkpoint,
-        net,
-        config,
-        data,
-        norm,
-        {"epoch": config.epochs, "train_seconds": seconds},
-    )
+    meta = {"epoch": config.epochs, "train_seconds": seconds}
+    _save(report.checkpoint, net, (config, data, form), norm, meta)
     return replace(report, seconds=seconds)
 
 
@@ -260,17 +268,18 @@ def _validate(net: RNNPolicyNet, valid: SequenceSampler) -> tuple[float | None, 
 def _save(
     path: Path,
     net: RNNPolicyNet,
-    config: BCConfig,
-    data: LearnData,
+    run: tuple[BCConfig, LearnData, ObservationForm],
     norm: Normalisation,
     meta: Mapping[str, float],
 ) -> None:
+    config, data, form = run
     checkpoint = {
         "format": CHECKPOINT_FORMAT,
         "version": CHECKPOINT_VERSION,
         "config": config.model_dump(mode="json"),
         "obs_keys": list(data.obs_keys),
         "obs_dims": list(data.obs_dims),
+        "obs_quaternions": list(form.quaternions),  # offsets in the raw vector made 6D
         "action_dim": data.action_dim,
         "obs_mean": norm.obs_mean.tolist(),
         "obs_std": norm.obs_std.tolist(),
@@ -301,6 +310,7 @@ class Checkpoint:
     config: BCConfig
     obs_keys: tuple[str, ...]
     obs_dims: tuple[int, ...]
+    form: ObservationForm
     norm: Normalisation
     net: RNNPolicyNet
     dataset: dict[str, object]  # what rebuilds its environments (`learn.evaluation`)
@@ -318,7 +328,8 @@ def load_checkpoint(path: Path) -> Checkpoint:
     if not isinstance(raw, dict) or raw.get("format") != CHECKPOINT_FORMAT:
         raise LearnDataError(f"{path} is not a {CHECKPOINT_FORMAT} checkpoint")
     config = BCConfig.model_validate(raw["config"])
-    net = RNNPolicyNet(sum(raw["obs_dims"]), int(raw["action_dim"]), config)
+    form = ObservationForm(sum(raw["obs_dims"]), tuple(raw.get("obs_quaternions", ())))
+    net = RNNPolicyNet(form.learned_dim, int(raw["action_dim"]), config)
     net.load_state_dict(raw["state_dict"])
     net.eval()
     norm = Normalisation(
@@ -329,6 +340,7 @@ def load_checkpoint(path: Path) -> Checkpoint:
         config,
         tuple(raw["obs_keys"]),
         tuple(raw["obs_dims"]),
+        form,
         norm,
         net,
         dict(raw["dataset"]),
@@ -368,10 +380,11 @@ class Policy:
             )
         if flat.shape != (sum(ckpt.obs_dims),):
             raise ValueError(f"observation of size {flat.shape} for keys of sizes {ckpt.obs_dims}")
-        x = _tensor(((flat - ckpt.norm.obs_mean) / ckpt.norm.obs_std)[None])
+        learned = ckpt.form.apply(flat[None])[0]
+        x = _tensor(((learned - ckpt.norm.obs_mean) / ckpt.norm.obs_std)[None])
         if self.rnn_horizon and self._steps % self.rnn_horizon == 0:
             self._state = None
         action, self._state = ckpt.net.act(x, self._state, self._generator)
         self._steps += 1
-        learned = action[0].double().numpy() * ckpt.norm.action_scale
-        return from_learned(learned, ckpt.config.actions)
+        row = action[0].double().numpy() * ckpt.norm.action_scale
+        return from_learned(row, ckpt.config.actions)

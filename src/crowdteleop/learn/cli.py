@@ -15,7 +15,7 @@ from rich.table import Table
 
 from crowdteleop.dataset.cli import clear_errors, progress_columns
 from crowdteleop.learn.actions import ActionKey
-from crowdteleop.learn.config import BCConfig, Head, RlAlgo, VecKind
+from crowdteleop.learn.config import BCConfig, Head, ObsRotation, RlAlgo, VecKind
 
 if TYPE_CHECKING:
     from crowdteleop.learn.evaluation import EvalReport
@@ -294,6 +294,9 @@ def bc(
         list[str] | None, typer.Option(help="observation keys in order (default: robomimic's)")
     ] = None,
     normalize_obs: Annotated[bool, typer.Option(help="standardize observations")] = False,
+    obs_rotation: Annotated[
+        ObsRotation, typer.Option(help="quaternion inputs as recorded, or as 6D rotations")
+    ] = "quaternion",
     train_filter: Annotated[str, typer.Option(help="mask/<key> to train on")] = "train",
     valid_filter: Annotated[str, typer.Option(help="mask/<key> to validate on")] = "valid",
     save_every: Annotated[int, typer.Option(help="keep epoch_<n>.pt every n epochs")] = 0,
@@ -319,6 +322,7 @@ def bc(
             epochs=epochs,
             steps_per_epoch=steps_per_epoch,
             normalize_obs=normalize_obs,
+            obs_rotation=obs_rotation,
             train_filter=train_filter,
             valid_filter=valid_filter,
             seed=seed,

@@ -10,6 +10,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from crowdteleop.learn.actions import ActionKey
 
 Head = Literal["gmm", "deterministic"]
+# how a BC policy sees quaternions: as recorded, or as 6D rotations (`learn.observations`)
+ObsRotation = Literal["quaternion", "6d"]
 # what `learn rl --algo` trains: the paper's PPO, SAC with demos in its buffer, SAC with IBRL
 RlAlgo = Literal["ppo", "sac", "ibrl"]
 
@@ -41,6 +43,9 @@ class BCConfig(BaseModel):
     epochs: int = Field(200, ge=1)
     steps_per_epoch: int = Field(100, ge=1, description="gradient steps per epoch (robomimic's)")
     normalize_obs: bool = Field(False, description="standardize observations (robomimic: off)")
+    obs_rotation: ObsRotation = Field(
+        "quaternion", description="quaternion inputs as recorded, or as 6D rotations"
+    )
     train_filter: str = "train"
     valid_filter: str | None = "valid"
     max_demos: int | None = Field(None, ge=1, description="train on the first n train demos")
