@@ -128,6 +128,7 @@ function reviewProgress(view) {
 function finish(view) {
   if (page.ended) return;
   page.ended = true;
+  clearBanner();  // "Demonstration saved" and the like: the completion says it all
   const done = $("done");
   done.className = "banner done show";
   done.innerHTML = "";
@@ -144,6 +145,9 @@ function finish(view) {
   }
   lastFeedback().then(() => {
     if (page.connection) page.connection.close();
+    // the robot is gone: no black video and no buttons that do nothing
+    $("video").hidden = true;
+    document.querySelector(".controls").hidden = true;
     if (view.redirect_url) setTimeout(() => { location.href = view.redirect_url; }, REDIRECT_DELAY_MS);
   });
 }
@@ -284,7 +288,7 @@ function showStatus() {
   c.addEventListener("saved", ({ detail }) => {
     if (detail.outcome === "success") {
       page.pendingFeedback = detail.episode;
-      banner("info", "Demonstration saved. Thank you!");
+      if (!page.ended) banner("info", "Demonstration saved. Thank you!");
     }
     heartbeat();
   });
