@@ -225,8 +225,11 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path, screenshots
                 # then the robot's video and buttons go; the completion is the only banner
                 await wait_js(page, "document.getElementById('video').hidden", 30)
                 results["after_done"] = await page.evaluate(
-                    "[...document.querySelectorAll('.banner, video, .controls')]"
+                    "[...document.querySelectorAll('.banner, video, .controls, aside')]"
                     ".filter(e => e.checkVisibility()).map(e => e.id || e.className)"
+                )
+                results["under_code"] = await page.evaluate(
+                    "document.getElementById('done').nextElementSibling.id"
                 )
                 await page.screenshot(path=str(screenshots / "teleop-feedback.png"))
                 results["phone_haptics"] = await phone.evaluate("window.crowdteleop.haptics")
@@ -297,7 +300,8 @@ def test_a_worker_joins_drives_pairs_a_phone_and_completes(tmp_path, screenshots
     assert "Your last demonstration" in feedback and "(study:" in feedback, feedback
     assert "smoother than" in feedback and feedback.strip().splitlines()[-1], feedback
     assert results["return_link"].endswith(f"cc={results['completion_code']}")
-    assert results["after_done"] == ["done"], "no saved banner, black video or idle buttons"
+    assert results["after_done"] == ["done"], "no saved banner, black video, buttons, side panels"
+    assert results["under_code"] == "feedback", "the last demo's feedback under the code"
     assert results["phone_haptics"] > 0, "the phone buzzed when the gripper touched the cube"
     for stats in results["schema_stats"]:
         assert stats == {"refusedOutgoing": 0, "ignoredIncoming": 0}, "every message fit"

@@ -140,14 +140,17 @@ function finish(view) {
   if (view.redirect_url) {
     const link = document.createElement("a");
     link.href = view.redirect_url;
-    link.textContent = " Return to Prolific";
-    done.append(link);
+    link.textContent = "Return to Prolific";
+    done.append(" ", link);
   }
+  done.after($("feedback"));  // how the last demonstration went, read right under the code
   lastFeedback().then(() => {
     if (page.connection) page.connection.close();
-    // the robot is gone: no black video and no buttons that do nothing
+    // the robot is gone: no black video, no buttons that do nothing, and no side panels
+    // (marker, phone, keys, a status that would go stale): the code and the feedback remain
     $("video").hidden = true;
     document.querySelector(".controls").hidden = true;
+    document.querySelector("aside").hidden = true;
     if (view.redirect_url) setTimeout(() => { location.href = view.redirect_url; }, REDIRECT_DELAY_MS);
   });
 }
