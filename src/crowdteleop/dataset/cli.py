@@ -169,6 +169,9 @@ def generate(
         str, typer.Option(help="source per attempt: nearest (object pose) or random")
     ] = "nearest",
     per_subtask: Annotated[bool, typer.Option(help="choose a source per subtask")] = False,
+    action_noise: Annotated[
+        float, typer.Option(min=0.0, max=1.0, help="std of noise on executed arm actions")
+    ] = 0.0,
     seed: Annotated[int, typer.Option(help="attempt i is scene seed+i")] = 1_000_000,
     max_attempts: Annotated[
         int | None, typer.Option(help="stop after this many attempts (default 20 x --num)")
@@ -195,7 +198,11 @@ def generate(
             ray_address=ray,
             seed=seed,
             max_attempts=max_attempts,
-            settings=Settings(strategy=strategy, per_subtask=per_subtask),  # type: ignore[arg-type]
+            settings=Settings(
+                strategy=strategy,  # type: ignore[arg-type]
+                per_subtask=per_subtask,
+                action_noise=action_noise,
+            ),
             build=build_dataset,
         )
         columns = progress_columns(TextColumn("{task.fields[attempts]} attempts"))

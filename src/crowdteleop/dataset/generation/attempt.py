@@ -52,6 +52,10 @@ class Settings:
     interpolation_step_rad: float = 0.1
     min_interpolation_steps: int = 5  # MimicGen's num_interpolation_steps
     settle_steps: int = 10  # steps holding a segment's last target for its subtask to end
+    # Gaussian noise (std, in the OSC action's [-1, 1] units) on each executed arm action, as
+    # MimicGen's action_noise (0.05 in its task configs): the kept demos then show the way
+    # back from small errors. What was executed is what is recorded, so playback stays exact.
+    action_noise: float = 0.0
 
 
 @dataclass
@@ -84,9 +88,13 @@ class Attempt:
 class _Executor:
     """Steps absolute world-frame targets and records every step."""
 
-    def __init__(self, sim: Simulation, absolute: AbsoluteTargets, attempt: Attempt) -> None:
+    def __init__(
+        self, sim: Simulation, absolute: AbsoluteTargets, attempt: Attempt, noise: float = 0.0
+    ) -> None:
         self.sim = sim
         self._absolute = absolute
+        self._noise = noise
+        self._rng = np.random.default_rng(attempt.seed)  # the same noise when resumed
         self._to_base = inverse(absolute.base_frame(sim.get_state()))
         self.attempt = attempt
         self.held = 0  # steps success has held
@@ -97,6 +105,9 @@ class _Executor:
         state = sim.get_state()
         goal = np.concatenate([to_target(self._to_base @ target), [gripper]])
         action = self._absolute.to_delta(state, goal)
+        if self._noise:
+            arm = action[:-1] + self._rng.normal(0.0, self._noise, len(action) - 1)
+            action = np.concatenate([np.clip(arm, -1.0, 1.0), action[-1:]])
         started = time.perf_counter()
         result = sim.step(action)
         attempt.durations_s.append(time.perf_counter() - started)
@@ -171,7 +182,7 @@ def run_attempt(scene: Scene, index: int, seed: int) -> Attempt:
     attempt = Attempt(index, seed)
     attempt.model_xml = sim.mjcf_xml()
     attempt.controller_state_at_start = [float(v) for v in sim.controller_state()]
-    run = _Executor(sim, scene.absolute, attempt)
+    run = _Executor(sim, scene.absolute, attempt, settings.action_noise)
     rng = random.Random(seed)
     current = from_pose7(run.label.hand_pose)
     gripper = -1.0
