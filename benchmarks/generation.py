@@ -24,6 +24,7 @@ import typer
 from rich.console import Console
 
 from crowdteleop.dataset.build import BuildOptions, build_dataset
+from crowdteleop.dataset.generation.attempt import Settings
 from crowdteleop.dataset.generation.run import GenerateOptions, generate
 
 app = typer.Typer(add_completion=False)
@@ -52,16 +53,25 @@ def cpu_seconds() -> float:
 
 
 def run_generation(
-    sources: Path, output: Path, num: int, workers: int, ray: str | None = None
+    sources: Path,
+    output: Path,
+    num: int,
+    workers: int,
+    ray: str | None = None,
+    action_noise: float = 0.0,
 ) -> dict[str, Any]:
     started, cpu = time.perf_counter(), cpu_seconds()
-    options = GenerateOptions(num=num, workers=workers, ray_address=ray, build=False)
+    settings = Settings(action_noise=action_noise)
+    options = GenerateOptions(
+        num=num, workers=workers, ray_address=ray, build=False, settings=settings
+    )
     report = generate(sources, output, options)
     seconds = time.perf_counter() - started
     return {
         "num": num,
         "workers": workers,
         "ray": ray,
+        "action_noise": action_noise,
         "attempts": report.attempts,
         "successes": report.successes,
         "success_rate": report.success_rate,
@@ -83,8 +93,11 @@ def main(
     train_dataset: bool = typer.Option(True, help="build sources + generated for training"),
     throughput: bool = typer.Option(False, help="measure 1 / 2 processes and 2 raylets only"),
     throughput_num: int = 40,
+    action_noise: float = typer.Option(0.0, help="MimicGen's action noise (its configs: 0.05)"),
 ) -> None:
     root = Path("out") / "generation" / task
+    # without noise: generated/, train.hdf5, result.json; with it: generated-noise-<std>/...
+    tag = f"-noise-{action_noise:g}" if action_noise else ""
     result: dict[str, Any] = {"task": task, "robot": robot, "date": time.strftime("%Y-%m-%d %H:%M")}
     source_dataset = root / "sources.hdf5"
     if not source_dataset.exists():
@@ -95,18 +108,21 @@ def main(
     if throughput:
         result["throughput"] = measure_throughput(source_dataset, root, throughput_num)
     else:
-        result["generation"] = run_generation(source_dataset, root / "generated", num, workers)
+        generated = root / f"generated{tag}"
+        result["generation"] = run_generation(
+            source_dataset, generated, num, workers, action_noise=action_noise
+        )
         console.print(result["generation"])
         if train_dataset:
             started = time.perf_counter()
             build_dataset(
-                [root / "sources", *sorted((root / "generated" / "episodes").glob("*.hdf5"))[:num]],
-                root / "train.hdf5",
+                [root / "sources", *sorted((generated / "episodes").glob("*.hdf5"))[:num]],
+                root / f"train{tag}.hdf5",
                 BuildOptions(drift_tolerance=None),
                 overwrite=True,
             )
             result["train_build_s"] = time.perf_counter() - started
-    name = "throughput.json" if throughput else "result.json"
+    name = "throughput.json" if throughput else f"result{tag}.json"
     (root / name).write_text(json.dumps(result, indent=2))
     console.print_json(json.dumps(result))
 
