@@ -3,10 +3,10 @@ first two columns of its rotation matrix (the continuous "6D" form).
 
 robosuite's quaternions (``robot0_eef_quat``, an object's ``*_quat`` and ``*_to_robot0_eef_quat``
 inside ``object``) keep w >= 0 (``transform_utils.mat2quat``), so where w passes 0 the sign of
-all four flips while the pose hardly moves. A hand pointing down sits right there (a half turn
-about a level axis), as does a relative pose above a can: in pick-place-can's generated data
-1.7 % of the steps flip the can-to-hand quaternion, each a jump of ~2 in four inputs. The 6D form
-has no such jump (Zhou et al. 2019; robomimic's diffusion policy trains rotations in it).
+all four flips while the pose hardly moves, a jump of ~2 in four inputs. pick-place-can's can
+sits right there (its x entry is +0.99 in one scene and -0.99 in the next; 100 flips in the
+1,620 steps of the 10 scripted sources). The 6D form has no such jump (Zhou et al. 2019;
+robomimic's diffusion policy trains rotations in it).
 
 Which entries of ``object`` are quaternions robosuite knows, not the dataset: its observables of
 the ``object`` modality, in the order robosuite concatenates them into ``object-state``.
