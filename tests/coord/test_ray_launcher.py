@@ -1,10 +1,11 @@
 """Teleop servers on a real Ray cluster (issue 14): a head and a second raylet with one teleop
 slot each, a coordinator launching on them, two bots as workers. Each session lands on its own
 node. The coordinator killed with SIGKILL and restarted takes both servers back (the workers
-keep driving). The second node then dies mid-episode (its raylet and every process under it,
-SIGKILL): this is noticed within 10 s, its worker is told and given a new robot with their
-count kept, the episode it cut short is kept as a crash, and the other session keeps
-driving.
+keep their robots; they begin driving after it, so the other session is mid-campaign when the
+node goes, however long the restart took). The second node then dies mid-episode (its raylet
+and every process under it, SIGKILL): this is noticed within 10 s, its worker is told and
+given a new robot with their count kept, the episode it cut short is kept as a crash, and the
+other session keeps driving.
 
 Ray listens on every interface and has no authentication by default, so everything runs in a
 network namespace of its own that reaches nothing outside (`unshare --net`, which needs
