@@ -159,8 +159,9 @@ def main(
     out: Path | None = None,
     reuse: bool = typer.Option(True, help="keep episodes / dataset / model already in --out"),
     dataset_from: Path | None = None,  # train on this built dataset instead of recording
+    threads: int = typer.Option(1, help="torch threads (1: two runs share 2 cores evenly)"),
 ) -> None:
-    torch.set_num_threads(1)
+    torch.set_num_threads(threads)
     out = out or Path("out") / f"transfer-{task}-{controller}-{robot.lower()}"
     out.mkdir(parents=True, exist_ok=True)
     dataset, model = dataset_from or out / "dataset.hdf5", out / "train" / "model.pt"
@@ -200,7 +201,7 @@ def main(
                     f"{row.valid_loss}, {row.seconds:.0f} s"
                 )
 
-        report = train_bc(dataset, out / "train", config, show)
+        report = train_bc(dataset, out / "train", config, show, threads=threads)
         result.update(
             train_seconds=report.seconds,
             train_demos=report.train_demos,
