@@ -59,9 +59,10 @@ def run_generation(
     workers: int,
     ray: str | None = None,
     action_noise: float = 0.0,
+    robosuite_step: bool = False,
 ) -> dict[str, Any]:
     started, cpu = time.perf_counter(), cpu_seconds()
-    settings = Settings(action_noise=action_noise)
+    settings = Settings(action_noise=action_noise, robosuite_step=robosuite_step)
     options = GenerateOptions(
         num=num, workers=workers, ray_address=ray, build=False, settings=settings
     )
@@ -72,6 +73,7 @@ def run_generation(
         "workers": workers,
         "ray": ray,
         "action_noise": action_noise,
+        "robosuite_step": robosuite_step,
         "attempts": report.attempts,
         "successes": report.successes,
         "success_rate": report.success_rate,
@@ -94,10 +96,14 @@ def main(
     throughput: bool = typer.Option(False, help="measure 1 / 2 processes and 2 raylets only"),
     throughput_num: int = 40,
     action_noise: float = typer.Option(0.0, help="MimicGen's action noise (its configs: 0.05)"),
+    robosuite_step: bool = typer.Option(False, help="execute on robosuite's own step"),
 ) -> None:
     root = Path("out") / "generation" / task
-    # without noise: generated/, train.hdf5, result.json; with it: generated-noise-<std>/...
-    tag = f"-noise-{action_noise:g}" if action_noise else ""
+    # without noise: generated/, train.hdf5, result.json; with it: generated-noise-<std>/...;
+    # on robosuite's own step: generated-robosuite-step/... (with noise: -noise-<std> after it)
+    tag = ("-robosuite-step" if robosuite_step else "") + (
+        f"-noise-{action_noise:g}" if action_noise else ""
+    )
     result: dict[str, Any] = {"task": task, "robot": robot, "date": time.strftime("%Y-%m-%d %H:%M")}
     source_dataset = root / "sources.hdf5"
     if not source_dataset.exists():
@@ -110,7 +116,12 @@ def main(
     else:
         generated = root / f"generated{tag}"
         result["generation"] = run_generation(
-            source_dataset, generated, num, workers, action_noise=action_noise
+            source_dataset,
+            generated,
+            num,
+            workers,
+            action_noise=action_noise,
+            robosuite_step=robosuite_step,
         )
         console.print(result["generation"])
         if train_dataset:

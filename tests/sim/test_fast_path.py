@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+import pytest
 
 from crowdteleop.control.command import DeviceCommand
 from crowdteleop.control.config import ControlConfig
 from crowdteleop.control.teleoperator import Teleoperator
+from crowdteleop.errors import ConfigError
 from crowdteleop.sim import SimConfig, make_simulation
 
 
@@ -61,3 +63,15 @@ def test_objects_a_task_does_not_use_stay_parked():
             assert np.array_equal(sim.get_state()[address : address + 3], parked_before)
     finally:
         sim.close()
+
+
+def test_robosuite_step_leaves_the_fast_path_and_plain_mujoco_refuses_it():
+    """SimConfig.robosuite_step: robosuite's own step whatever the task declares; a task on
+    plain MuJoCo has no robosuite step, and says so."""
+    sim = make_simulation(SimConfig(task="lift", robosuite_step=True))
+    try:
+        assert not sim.fast_path and sim.fast_path_obstacles == []
+    finally:
+        sim.close()
+    with pytest.raises(ConfigError, match="no robosuite to step"):
+        make_simulation(SimConfig(task="mujoco-lift", robosuite_step=True))

@@ -172,6 +172,10 @@ def generate(
     action_noise: Annotated[
         float, typer.Option(min=0.0, max=1.0, help="std of noise on executed arm actions")
     ] = 0.0,
+    robosuite_step: Annotated[
+        bool,
+        typer.Option(help="execute on robosuite's own step (~6x slower): its very physics"),
+    ] = False,
     seed: Annotated[int, typer.Option(help="attempt i is scene seed+i")] = 1_000_000,
     max_attempts: Annotated[
         int | None, typer.Option(help="stop after this many attempts (default 20 x --num)")
@@ -202,6 +206,7 @@ def generate(
                 strategy=strategy,  # type: ignore[arg-type]
                 per_subtask=per_subtask,
                 action_noise=action_noise,
+                robosuite_step=robosuite_step,
             ),
             build=build_dataset,
         )

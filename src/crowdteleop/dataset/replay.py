@@ -169,11 +169,12 @@ class ReplayChecker:
             sim.close()
         self._sims.clear()
 
-    def simulation(self, demo: Demo) -> Simulation:
-        """The recording's simulation, checked to hold the recorded model."""
+    def simulation(self, demo: Demo, robosuite_step: bool = False) -> Simulation:
+        """The recording's simulation, checked to hold the recorded model; ``robosuite_step``
+        steps it with robosuite's own step whatever it was recorded with."""
         from crowdteleop.sim import SimConfig, make_simulation
 
-        raw = recorded_sim_config(demo)
+        raw = recorded_sim_config(demo) | ({"robosuite_step": True} if robosuite_step else {})
         key = json.dumps(raw, sort_keys=True)
         if key not in self._sims:
             self._sims[key] = make_simulation(SimConfig(**raw))

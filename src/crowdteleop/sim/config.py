@@ -42,6 +42,12 @@ class SimConfig(BaseModel):
         "'default': robosuite's default for the robot; unset: the platform's choice, robosuite's "
         "default except where it cannot grasp (crowdteleop.tasks.PLATFORM_GRIPPERS)",
     )
+    robosuite_step: bool = Field(
+        False,
+        description="step with robosuite's own env.step (its controller at every substep), "
+        "whatever the task declares: ~6x slower than the fast path, and the physics plain "
+        "robosuite runs, to the bit (dataset generate --robosuite-step)",
+    )
     model_seed: int = Field(
         0,
         ge=0,

@@ -19,6 +19,7 @@ from crowdteleop.dataset.files import DatasetError
 from crowdteleop.dataset.generation.attempt import Settings
 from crowdteleop.dataset.generation.run import GenerateOptions, generate
 from crowdteleop.dataset.lerobot import export_lerobot
+from crowdteleop.dataset.replay import ReplayChecker, load_demo
 from crowdteleop.recording.episode_file import read_episode
 from tests.dataset.test_lerobot_export import load_with_lerobot
 
@@ -242,4 +243,26 @@ def test_action_noise_perturbs_the_executed_actions_and_they_are_what_is_recorde
         clean, shaken = a["data"][first]["actions"][:20, :6], b["data"][first]["actions"][:20, :6]
         assert 0.02 < float(np.std(shaken - clean)) < 0.2
     results = {r.name: r.verdict for r in check_dataset(noisy / "demo.hdf5")}
+    assert "fail" not in results.values(), results
+
+
+def test_robosuite_step_generates_on_plain_robosuites_own_physics(
+    generated, lift_sources, tmp_path
+):
+    """--robosuite-step: the demos are executed on robosuite's own step, say so in their
+    sim_config, and their actions replayed in plain robosuite (rebuilt from env_args) retrace
+    them (nanometres, open loop too); the fast path's demos part there by a fraction of a
+    millimetre a step."""
+    options = GenerateOptions(num=2, settings=Settings(robosuite_step=True))
+    report = generate(lift_sources.dataset, tmp_path / "plain", options)
+    assert report.successes == 2
+    plain, fast = load_demo(tmp_path / "plain" / "demo.hdf5"), load_demo(generated[0] / "demo.hdf5")
+    assert plain.info.sim_config["robosuite_step"] is True
+    assert fast.info.sim_config["robosuite_step"] is False
+    with ReplayChecker() as checker:
+        exact, drifting = checker.robosuite_drift(plain), checker.robosuite_drift(fast)
+    assert exact.per_step_median_m == 0.0, exact
+    assert exact.per_step_max_m < 1e-6 and exact.open_loop_max_m < 1e-6, exact
+    assert drifting.per_step_median_m > 1e-5, drifting
+    results = {r.name: r.verdict for r in check_dataset(tmp_path / "plain" / "demo.hdf5")}
     assert "fail" not in results.values(), results

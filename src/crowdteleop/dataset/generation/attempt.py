@@ -56,6 +56,10 @@ class Settings:
     # MimicGen's action_noise (0.05 in its task configs): the kept demos then show the way
     # back from small errors. What was executed is what is recorded, so playback stays exact.
     action_noise: float = 0.0
+    # Execute on robosuite's own step instead of the fast path (~6x slower): demos whose
+    # physics are plain robosuite's to the bit, for policies evaluated there (SimConfig's
+    # robosuite_step, recorded in each generated episode's sim_config).
+    robosuite_step: bool = False
 
 
 @dataclass
@@ -76,6 +80,7 @@ class Attempt:
     durations_s: list[float] = field(default_factory=list)
     chosen: list[dict[str, Any]] = field(default_factory=list)  # provenance per subtask
     model_xml: str = ""
+    sim_config: dict[str, Any] = field(default_factory=dict)  # what it was simulated with
     worker: str = ""  # which process (and Ray node) ran it
     controller_state_at_start: list[float] = field(default_factory=list)
     seconds: float = 0.0
@@ -181,6 +186,7 @@ def run_attempt(scene: Scene, index: int, seed: int) -> Attempt:
     sim.reset(seed)
     attempt = Attempt(index, seed)
     attempt.model_xml = sim.mjcf_xml()
+    attempt.sim_config = sim.config.model_dump(mode="json")
     attempt.controller_state_at_start = [float(v) for v in sim.controller_state()]
     run = _Executor(sim, scene.absolute, attempt, settings.action_noise)
     rng = random.Random(seed)

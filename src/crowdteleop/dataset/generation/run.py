@@ -132,6 +132,7 @@ def write_episode(attempt: Attempt, directory: Path, sources: Sources) -> Path:
         update={
             "reset_seed": attempt.seed,
             "model_xml": attempt.model_xml,
+            "sim_config": attempt.sim_config,
             "controller_state_at_start": attempt.controller_state_at_start,
             "env_args": recorded_env_args(sources.first),  # a dataset keeps them once, not per demo
             "session_id": None,

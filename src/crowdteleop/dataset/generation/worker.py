@@ -20,7 +20,7 @@ class GenerationWorker:
     def __init__(self, source: Path, settings: Settings) -> None:
         sources = read_sources(source)
         self._checker = ReplayChecker()
-        sim = self._checker.simulation(sources.first)
+        sim = self._checker.simulation(sources.first, robosuite_step=settings.robosuite_step)
         subtasks, segments, _ = common_subtasks(sources.demos)
         from crowdteleop.tasks import get_task
 

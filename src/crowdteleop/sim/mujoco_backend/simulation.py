@@ -59,6 +59,8 @@ class MujocoSimulation:
                 f"the mujoco backend supports action_mode 'joint-velocity' only, got "
                 f"{config.action_mode!r}; use a robosuite task (e.g. 'lift') for 'osc-pose'"
             )
+        if config.robosuite_step:
+            raise ConfigError(f"task {config.task!r} runs on plain MuJoCo: no robosuite to step")
         self.config = config
         self.task: TaskSpec = get_task(config.task)
         if self.task.backend != "mujoco":

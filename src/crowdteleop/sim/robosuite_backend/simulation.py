@@ -124,9 +124,10 @@ class RobosuiteSimulation:
 
     def _choose_fast_path(self) -> bool:
         """The fast path unless the task cannot use it faithfully (or its declaration says
-        "off"); "on" with an obstacle is refused, "auto" falls back with a warning."""
+        "off", or the config asks for robosuite's step); "on" with an obstacle is refused,
+        "auto" falls back with a warning."""
         obstacles = self.fast_path_obstacles
-        if self.task.fast_path == "off":
+        if self.task.fast_path == "off" or self.config.robosuite_step:
             return False
         if obstacles and self.task.fast_path == "on":
             raise ConfigError(
