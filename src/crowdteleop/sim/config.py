@@ -46,7 +46,7 @@ class SimConfig(BaseModel):
         False,
         description="step with robosuite's own env.step (its controller at every substep), "
         "whatever the task declares: ~6x slower than the fast path, and the physics plain "
-        "robosuite runs, to the bit (dataset generate --robosuite-step)",
+        "robosuite runs, to nanometres (dataset generate --robosuite-step)",
     )
     model_seed: int = Field(
         0,

@@ -57,7 +57,7 @@ class Settings:
     # back from small errors. What was executed is what is recorded, so playback stays exact.
     action_noise: float = 0.0
     # Execute on robosuite's own step instead of the fast path (~6x slower): demos whose
-    # physics are plain robosuite's to the bit, for policies evaluated there (SimConfig's
+    # physics are plain robosuite's (to nanometres), for policies evaluated there (SimConfig's
     # robosuite_step, recorded in each generated episode's sim_config).
     robosuite_step: bool = False
 
