@@ -8,13 +8,16 @@ import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
 from rich.console import Console
 from rich.table import Table
 
 from crowdteleop.errors import CrowdteleopError
+
+if TYPE_CHECKING:
+    from crowdteleop.dataset.generation.run import GenerationReport
 
 app = typer.Typer(
     help="Build, replay, summarize and export demonstration datasets.", no_args_is_help=True
@@ -218,6 +221,14 @@ def generate(
                 bar.update(job, completed=min(successes, wanted), total=wanted, attempts=attempts)
 
             report = run_generation(source, output, options, update)
+    _print_generation(report)
+    if report.successes < num:
+        errors.print(f"[yellow]only {report.successes} of {num} generated[/yellow]")
+        raise typer.Exit(1)
+
+
+def _print_generation(report: GenerationReport) -> None:
+    """Why attempts failed, which sources generalize, and the run's totals."""
     for why in report.left_out:
         errors.print(f"[yellow]left out[/yellow] {why}")
     table = Table(title=f"{report.successes} of {report.attempts} attempts succeeded")
@@ -237,9 +248,6 @@ def generate(
         f"{report.success_rate:.0%}; {report.resumed} attempts resumed from an earlier run; "
         f"{report.seconds:.0f} s" + (f"; dataset {report.dataset}" if report.dataset else "")
     )
-    if report.successes < num:
-        errors.print(f"[yellow]only {report.successes} of {num} generated[/yellow]")
-        raise typer.Exit(1)
 
 
 @app.command()
