@@ -17,7 +17,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tests.fixtures.browser import browser_context, centre, require_chromium, touch, wait_js
+from tests.fixtures.browser import (
+    browser_context,
+    centre,
+    phone_paired,
+    require_chromium,
+    touch,
+    wait_js,
+)
 from tests.fixtures.coord import coord_server
 from tests.fixtures.marker_video import MARKER_ID, PhonePose, write_y4m
 from tests.fixtures.phone_page import quat_angle_deg, relative_turn, robot_for_a_phone
@@ -154,7 +161,7 @@ def test_the_phone_camera_tracks_the_marker_and_drives_the_hand_along_the_path(
                 phone = await handset.new_page()
                 cdp = await handset.new_cdp_session(phone)
                 await phone.goto(phone_link)
-                await wait_js(phone, "window.crowdteleop.ready === true", 30)
+                await phone_paired(phone)
                 results["why"] = await phone.inner_text("#motion-why")
                 await phone.click("#start-camera")
                 await wait_js(phone, "crowdteleop.tracking === 'tracking'", 20)

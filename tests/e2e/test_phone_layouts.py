@@ -14,7 +14,14 @@ from typing import Any
 
 import pytest
 
-from tests.fixtures.browser import browser_context, centre, require_chromium, touch, wait_js
+from tests.fixtures.browser import (
+    browser_context,
+    centre,
+    phone_paired,
+    require_chromium,
+    touch,
+    wait_js,
+)
 from tests.fixtures.coord import coord_server
 from tests.fixtures.xr_phone import EMULATED_PHONE, IWER
 
@@ -85,7 +92,7 @@ async def _pair_phone(desktop: Any, handset: Any, emulate_xr: bool = False) -> A
         await phone.add_init_script(EMULATED_PHONE)
     path = link[link.index("/phone") :]
     await phone.goto(desktop.url[: desktop.url.index("/teleop")] + path)
-    await wait_js(phone, "window.crowdteleop.ready === true", 30)
+    await phone_paired(phone)
     return phone
 
 

@@ -16,7 +16,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tests.fixtures.browser import browser_context, centre, require_chromium, touch, wait_js
+from tests.fixtures.browser import (
+    browser_context,
+    centre,
+    phone_paired,
+    require_chromium,
+    touch,
+    wait_js,
+)
 from tests.fixtures.coord import coord_server
 from tests.fixtures.phone_page import (
     quat_angle_deg,
@@ -81,7 +88,7 @@ def test_the_phone_in_ar_drives_the_hand_along_its_path_and_lets_go_when_trackin
                 phone = await handset.new_page()
                 cdp = await handset.new_cdp_session(phone)
                 await phone.goto(phone_link)
-                await wait_js(phone, "window.crowdteleop.ready === true", 30)
+                await phone_paired(phone)
                 results["why"] = await wait_js(
                     phone, "document.getElementById('motion-why').textContent", 10
                 )

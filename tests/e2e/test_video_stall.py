@@ -17,6 +17,7 @@ from tests.fixtures.browser import (
     browser_context,
     centre,
     join_to_video,
+    phone_paired,
     require_chromium,
     touch,
     wait_js,
@@ -104,7 +105,7 @@ async def _phone_takes_over_and_drives(page: Any, handset: Any, url: str) -> dic
     await phone.goto(f"{url}/phone")
     await phone.fill("#code", code)
     await phone.click("#pair-form button")
-    await wait_js(phone, "window.crowdteleop.ready === true", 30)
+    await phone_paired(phone)
     before = np.array(await page.evaluate(f"{STATUS}.end_effector"))
     clutch = await centre(phone, "#clutch")
     lift_x, lift_y = await centre(phone, "#lift")
